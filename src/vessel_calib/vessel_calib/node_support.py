@@ -1,0 +1,269 @@
+"""What every node of the project shares: start-up and shutdown, parameters, QoS, health reporting.
+
+This is the only module of ``vessel_calib`` that imports rclpy; the cores stay ROS-free. Nodes use it so that
+they all behave the same way: parameters declared with descriptors, a clean exit (status 0, no traceback) on
+SIGINT, problems logged once per kind, counted and published on ``/diagnostics``, and configuration errors
+that stop the node at start with one clear line.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+from vessel_calib.errors import VesselError
+
+SENSOR_DATA_QOS = qos_profile_sensor_data
+"""Best effort, keep last 5: images and other high-rate data where the newest sample matters most."""
+
+LATCHED_QOS = QoSProfile(
+    depth=1,
+    history=HistoryPolicy.KEEP_LAST,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+"""Reliable and transient local: a late subscriber still gets the last sample (e.g. the camera's fix)."""
+
+
+def reliable_qos(depth: int = 10) -> QoSProfile:
+    """Reliable, volatile, keep last ``depth``: detections, tracks and fixes, where no message may be lost."""
+    return QoSProfile(
+        depth=depth,
+        history=HistoryPolicy.KEEP_LAST,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def stamp_to_sec(stamp: Time) -> float:
+    """Seconds since the epoch of a ``builtin_interfaces/Time``."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def sec_to_stamp(seconds: float) -> Time:
+    """A ``builtin_interfaces/Time`` for seconds since the epoch (rounded to the nanosecond)."""
+    total_ns = round(seconds * 1e9)
+    return Time(sec=total_ns // 1_000_000_000, nanosec=total_ns % 1_000_000_000)
+
+
+def declare_parameter(
+    node: Node,
+    name: str,
+    default: Any,
+    description: str,
+    *,
+    read_only: bool = False,
+    float_range: tuple[float, float] | None = None,
+    int_range: tuple[int, int] | None = None,
+    additional_constraints: str = "",
+) -> Any:
+    """Declare one parameter with a descriptor and return its value.
+
+    Ranges are enforced by ROS when the parameter is set at start (``--params-file``, ``-p``) or later.
+    """
+    descriptor = ParameterDescriptor(
+        description=description,
+        read_only=read_only,
+        additional_constraints=additional_constraints,
+    )
+    if float_range is not None:
+        descriptor.floating_point_range = [
+            FloatingPointRange(from_value=float(float_range[0]), to_value=float(float_range[1]), step=0.0)
+        ]
+    if int_range is not None:
+        descriptor.integer_range = [
+            IntegerRange(from_value=int(int_range[0]), to_value=int(int_range[1]), step=0)
+        ]
+    return node.declare_parameter(name, default, descriptor).value
+
+
+CAMERA_PARAMETER_DESCRIPTIONS: dict[str, str] = {
+    "camera_lat": "Camera latitude, WGS-84 degrees.",
+    "camera_lon": "Camera longitude, WGS-84 degrees.",
+    "image_width": "Image width in pixels the calibration was made for.",
+    "image_height": "Image height in pixels the calibration was made for.",
+    "H": "Homography, 9 numbers row-major: z_p (x_p, y_p, 1) = H (x_w, y_w, 1), world in metres east/north.",
+    "K1": "Radial distortion term about the centre: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2).",
+    "center_x": "Distortion centre x, pixels.",
+    "center_y": "Distortion centre y, pixels.",
+    "heading_deg": "Camera heading implied by H, degrees from north (informational; checked against H).",
+}
+
+
+DEFAULT_CAMERA_PARAMETERS: dict[str, Any] = {
+    "camera_lat": 32.70297,
+    "camera_lon": -117.234631,
+    "image_width": 1280,
+    "image_height": 720,
+    "H": [-441.0, 379.0, -1000.0, -217.0, -56.5, -548.0, -0.512, -0.144, 1.0],
+    "K1": -4.053e-07,
+    "center_x": 640.0,
+    "center_y": 360.0,
+    "heading_deg": 76.475,
+}
+"""The challenge camera, the paper's calibration with its sign typo corrected (see aitas/camera.json)."""
+
+
+def declare_camera_model(node: Node, prefix: str = "camera"):
+    """Declare the ``camera.*`` calibration parameters and build the camera model from them.
+
+    Defaults are the paper's corrected calibration of the challenge camera, so nodes work on the challenge
+    data without a calibration file. A calibration that cannot be used raises ``CalibrationError`` naming the
+    key; nodes let it stop them at start (``run_node`` prints it as one line).
+    """
+    from vessel_calib.camera_model import CameraModel
+
+    values = {}
+    for key, default in DEFAULT_CAMERA_PARAMETERS.items():
+        description = CAMERA_PARAMETER_DESCRIPTIONS.get(key, f"Camera calibration value '{key}'.")
+        values[key] = declare_parameter(node, f"{prefix}.{key}", default, description, read_only=True)
+    return CameraModel.from_params(values)
+
+
+class NodeHealth:
+    """Counts a node's problems, logs each kind once, and publishes them on ``/diagnostics``.
+
+    A running node never dies on bad input: it calls ``problem(kind, message)``, which logs the first
+    occurrence of that kind as a warning (later ones at debug level), counts every occurrence, and reports the
+    counts with the node's own figures (``set_value``) once a second.
+    """
+
+    def __init__(self, node: Node, hardware_id: str = "camera", period_s: float = 1.0):
+        self._node = node
+        self._hardware_id = hardware_id
+        self._counts: dict[str, int] = {}
+        self._values: dict[str, str] = {}
+        self._messages: dict[str, str] = {}
+        self._status_level = DiagnosticStatus.OK
+        self._status_message = "running"
+        self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._timer = node.create_timer(period_s, self.publish)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """A copy of the problem counters by kind."""
+        return dict(self._counts)
+
+    def problem(self, kind: str, message: str) -> None:
+        """Record one problem of a kind: logged the first time, counted always."""
+        count = self._counts.get(kind, 0) + 1
+        self._counts[kind] = count
+        self._messages[kind] = message
+        if count == 1:
+            self._node.get_logger().warning(f"{message} (counted as '{kind}' on /diagnostics; logged once)")
+        else:
+            self._node.get_logger().debug(f"{message} ({kind} #{count})")
+
+    def count(self, kind: str, amount: int = 1) -> None:
+        """Count an event that needs no log line (e.g. frames processed)."""
+        self._counts[kind] = self._counts.get(kind, 0) + amount
+
+    def set_value(self, key: str, value: Any) -> None:
+        """Report a figure (latency, frames sent, progress) in the next diagnostics message."""
+        if isinstance(value, float):
+            value = f"{value:.6g}" if math.isfinite(value) else str(value)
+        self._values[key] = str(value)
+
+    def set_status(self, level: bytes, message: str) -> None:
+        """Set the overall level (``DiagnosticStatus.OK/WARN/ERROR/STALE``) and its message."""
+        self._status_level = level
+        self._status_message = message
+
+    def publish(self) -> None:
+        """Publish the current status, figures and problem counts."""
+        status = DiagnosticStatus()
+        status.name = f"{self._node.get_name()}"
+        status.hardware_id = self._hardware_id
+        level = self._status_level
+        message = self._status_message
+        if self._messages and level == DiagnosticStatus.OK:
+            level = DiagnosticStatus.WARN
+            message = f"{message}; problems: " + ", ".join(f"{k}={v}" for k, v in sorted(self._counts.items())
+                                                          if k in self._messages)
+        status.level = level
+        status.message = message
+        status.values = [KeyValue(key=k, value=v) for k, v in sorted(self._values.items())]
+        status.values += [KeyValue(key=f"count.{k}", value=str(v)) for k, v in sorted(self._counts.items())]
+        array = DiagnosticArray()
+        array.header.stamp = self._node.get_clock().now().to_msg()
+        array.status = [status]
+        self._publisher.publish(array)
+
+
+def run_node(
+    node_factory: Callable[[], Node],
+    args: Sequence[str] | None = None,
+    *,
+    threads: int = 1,
+) -> int:
+    """Run a node until SIGINT or shutdown, the same way for every executable of the project.
+
+    Returns the process exit status: 0 after SIGINT or a node that finished its work, 2 when the node could
+    not start because of a ``VesselError`` (printed as one ``error:`` line naming the problem and the fix).
+    """
+    rclpy.init(args=args)
+    node = None
+    status = 0
+    try:
+        node = node_factory()
+        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not getattr(node, "finished", False):
+            executor.spin_once(timeout_sec=0.1)
+        status = int(getattr(node, "exit_status", 0))
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        status = 0
+    finally:
+        if node is not None:
+            try:
+                close = getattr(node, "close", None)
+                if close is not None:
+                    close()
+                node.destroy_node()
+            except Exception as error:
+                print(f"warning: while shutting down: {error}", file=sys.stderr)
+        if rclpy.ok():
+            rclpy.try_shutdown()
+    return status
+
+
+def main_for(node_class: type[Node], threads: int = 1) -> Callable[[], None]:
+    """Make the console-script entry point of a node class (``main = main_for(MyNode)`` in its module)."""
+
+    def main(args: Sequence[str] | None = None) -> None:
+        sys.exit(run_node(node_class, args if args is not None else sys.argv, threads=threads))
+
+    return main
+
+
+def wait_for(predicate: Callable[[], bool], timeout_s: float, node: Node | None = None) -> bool:
+    """Poll ``predicate`` (spinning ``node`` if given) until it is true or ``timeout_s`` passes."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        if node is not None:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        else:
+            time.sleep(0.05)
+    return predicate()

@@ -1,0 +1,31 @@
+"""Install vessel_detect: image sources, bag tools, the camera ingest and detector nodes."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "vessel_detect"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="Vessel tracking maintainers",
+    maintainer_email="maintainers@vessel-tracking.invalid",
+    description="Camera ingest and ONNX vessel detector nodes.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "camera = vessel_detect.camera_node:main",
+            "detector = vessel_detect.detector_node:main",
+            "bag_build = vessel_detect.bag_build:main",
+            "recorder = vessel_detect.recorder_node:main",
+        ],
+    },
+)

@@ -1,0 +1,1 @@
+"""Image sources, rosbag2 MCAP tools, camera ingest and ONNX vessel detector nodes."""

@@ -1,0 +1,1 @@
+"""Multi-target Kalman tracker, screen-to-world fuser and GPS publisher for monocular vessel tracking."""
