@@ -248,7 +248,7 @@ def run_node(
 
 
 def main_for(node_class: type[Node], threads: int = 1) -> Callable[[], None]:
-    """Make the console-script entry point of a node class (``main = main_for(MyNode)`` in its module)."""
+    """Make the console-script entry point of a node class; a node module ends with one such line."""
 
     def main(args: Sequence[str] | None = None) -> None:
         sys.exit(run_node(node_class, args if args is not None else sys.argv, threads=threads))
