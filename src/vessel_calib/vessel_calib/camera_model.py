@@ -1,0 +1,522 @@
+"""The paper's camera model: a sea-plane homography H plus one radial distortion term K1 about the image centre.
+
+Conventions (checked against the AI Tracks at Sea data, see ``../shared/aitas/README.md``):
+
+* World: metres east (x_w) and north (y_w) of the camera on the sea plane (``vessel_calib.geodesy``).
+* Ideal pixel: ``z_p (x_p, y_p, 1)^T = H (x_w, y_w, 1)^T``; ``z_p < 0`` for points in front of the camera. The
+  constructor normalises the overall sign of H (H and -H are the same homography) so this holds for the
+  ground seen at the bottom centre of the image; the camera must be mounted upright (roll well under 90 deg).
+* Screen pixel: ``x_s = x_c + (x_p - x_c)(1 + K1 r_p^2)`` (y likewise), ``r_p`` the ideal point's distance from
+  the distortion centre ``(x_c, y_c)``. With K1 < 0 the map folds at ``r_p = sqrt(-1 / (3 K1))``: ideal points
+  beyond the fold and screen points beyond ``max_screen_radius`` have no meaningful counterpart and are
+  reported invalid (NaN coordinates), never as garbage.
+* Horizon: the vanishing line of the sea plane, where ``z_p = 0``, i.e. the third row of ``H^-1`` dotted with
+  ``(x_p, y_p, 1)`` is zero (the paper's horizon equation), mapped through the distortion.
+* Heading: the paper's method: the ideal horizon point at ``x_p = x_c`` back-projected through ``H^-1`` gives
+  the direction (x_w, y_w) the camera looks in; heading = atan2(x_w, y_w), degrees clockwise from north.
+
+Everything is vectorised: arrays of any (broadcastable) shape in, arrays of that shape out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from vessel_calib import geodesy
+from vessel_calib.errors import CalibrationError
+
+#: Condition number above which H is treated as singular.
+MAX_H_CONDITION = 1e12
+#: |K1| * r_corner^2 above this changes the corner radius by more than 100 %: no real lens, a unit mistake.
+MAX_K1_CORNER_EFFECT = 1.0
+#: Undistortion must reproduce the screen point to this many pixels.
+UNDISTORT_TOLERANCE_PX = 1e-6
+_UNDISTORT_MAX_ITER = 80
+#: Relative margin on z_p below which a point counts as on the horizon.
+_HORIZON_EPS = 1e-9
+
+PARAM_KEYS_REQUIRED = ("camera_lat", "camera_lon", "image_width", "image_height", "H", "K1", "center_x", "center_y")
+
+
+def _arr(value) -> np.ndarray:
+    return np.asarray(value, dtype=float)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool | np.bool_)
+
+
+class CameraModel:
+    """Immutable camera model: sea-plane homography H, radial K1, image geometry and camera position.
+
+    Args:
+        H: 3x3 (or 9 values row-major) homography in the paper's convention, world metres -> ideal pixels.
+        K1: radial distortion coefficient (1/px^2), the paper's convention above.
+        center: distortion centre (x_c, y_c) in screen pixels.
+        image_size: (width, height) in pixels.
+        camera_lat, camera_lon: camera position (WGS-84 degrees), the origin of the world frame; needed only
+            for the GPS conversions.
+
+    Raises:
+        CalibrationError: non-finite or singular H, absurd K1, bad image size or centre, invalid position.
+    """
+
+    __slots__ = (
+        "_H", "_Hinv", "_K1", "_center", "_image_size", "_camera_lat", "_camera_lon",
+        "_horizon", "_r_fold", "_rs_max", "_heading",
+    )
+
+    def __init__(self, H, K1: float = 0.0, center=(640.0, 360.0), image_size=(1280, 720),
+                 camera_lat: float | None = None, camera_lon: float | None = None):
+        try:
+            H_arr = np.array(H, dtype=float).reshape(3, 3)
+        except (TypeError, ValueError):
+            raise CalibrationError(
+                f"H must be a 3x3 matrix or 9 numbers row-major, got {H!r}; re-run the calibration") from None
+        if not np.all(np.isfinite(H_arr)):
+            raise CalibrationError("H contains NaN or infinite values; re-run the calibration to get a finite H")
+        if not np.any(H_arr):
+            raise CalibrationError("H is all zeros (singular); re-run the calibration")
+        cond = np.linalg.cond(H_arr)
+        if not np.isfinite(cond) or cond > MAX_H_CONDITION:
+            raise CalibrationError(
+                f"H is singular or nearly so (condition number {cond:.3g} > {MAX_H_CONDITION:.0e}): it cannot "
+                "map screen points back to the sea; re-run the calibration with well spread, non-collinear pairs")
+
+        try:
+            width, height = (int(v) for v in image_size)
+            if (width, height) != tuple(float(v) for v in image_size):
+                raise ValueError
+        except (TypeError, ValueError):
+            raise CalibrationError(f"image_size must be two integers (width, height), got {image_size!r}") from None
+        if width <= 0 or height <= 0:
+            raise CalibrationError(f"image_size must be positive, got {width}x{height}")
+        try:
+            cx, cy = (float(v) for v in center)
+        except (TypeError, ValueError):
+            raise CalibrationError(f"center must be two numbers (x_c, y_c), got {center!r}") from None
+        if not (math.isfinite(cx) and math.isfinite(cy)) or not (0 <= cx <= width and 0 <= cy <= height):
+            raise CalibrationError(
+                f"distortion centre ({cx}, {cy}) is not inside the {width}x{height} image; use the image centre")
+
+        if not _is_number(K1) or not math.isfinite(float(K1)):
+            raise CalibrationError(f"K1 must be a finite number, got {K1!r}")
+        K1 = float(K1)
+        r_corner2 = max((px - cx) ** 2 + (py - cy) ** 2 for px in (0, width) for py in (0, height))
+        if abs(K1) * r_corner2 > MAX_K1_CORNER_EFFECT:
+            raise CalibrationError(
+                f"K1 = {K1:.4g} is absurd for a {width}x{height} image: it changes the corner radius by "
+                f"{100 * abs(K1) * r_corner2:.0f} %; expect |K1| < {MAX_K1_CORNER_EFFECT / r_corner2:.2g} (paper: "
+                "-4.05e-7). Check the convention x_s = x_c + (x_p - x_c)(1 + K1 r_p^2) and full-resolution pixels")
+
+        if (camera_lat is None) != (camera_lon is None):
+            raise CalibrationError("give both camera_lat and camera_lon, or neither")
+        if camera_lat is not None:
+            geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (camera_lat, camera_lon)")
+            camera_lat, camera_lon = float(camera_lat), float(camera_lon)
+
+        self._K1 = K1
+        self._center = (cx, cy)
+        self._image_size = (width, height)
+        self._camera_lat = camera_lat
+        self._camera_lon = camera_lon
+        if K1 < 0:
+            self._r_fold = math.sqrt(-1.0 / (3.0 * K1))
+            self._rs_max = self._r_fold * (1.0 + K1 * self._r_fold ** 2)
+        else:
+            self._r_fold = math.inf
+            self._rs_max = math.inf
+
+        # Normalise the sign of H so z_p < 0 in front: the bottom centre of the image must be sea in front.
+        Hinv = np.linalg.inv(H_arr)
+        bx, by = self._undistort_ok(np.array(cx), np.array(height - 1.0))[:2]
+        if not np.isfinite(bx):
+            bx, by = cx, cy
+        w_bottom = Hinv[2] @ np.array([float(bx), float(by), 1.0])
+        if abs(w_bottom) <= _HORIZON_EPS * np.abs(Hinv[2]).sum() * max(width, height):
+            raise CalibrationError(
+                "the horizon of this H passes through the bottom centre of the image: it cannot be the sea "
+                "seen by an upright camera; re-run the calibration")
+        if w_bottom > 0:
+            H_arr = -H_arr
+            Hinv = -Hinv
+        H_arr.setflags(write=False)
+        Hinv.setflags(write=False)
+        self._H = H_arr
+        self._Hinv = Hinv
+        a, b, c = Hinv[2]
+        norm = math.hypot(a, b)
+        self._horizon = (a / norm, b / norm, c / norm) if norm > 0 else (0.0, 0.0, 1.0)
+        self._heading = self._compute_heading()
+
+    # ----------------------------------------------------------------- properties
+    @property
+    def H(self) -> np.ndarray:
+        """The 3x3 homography (read-only), sign-normalised so z_p < 0 in front."""
+        return self._H
+
+    @property
+    def H_inv(self) -> np.ndarray:
+        """Inverse of H (read-only): ideal pixels -> homogeneous world."""
+        return self._Hinv
+
+    @property
+    def K1(self) -> float:
+        """Radial distortion coefficient, 1/px^2."""
+        return self._K1
+
+    @property
+    def center(self) -> tuple[float, float]:
+        """Distortion centre (x_c, y_c), screen pixels."""
+        return self._center
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self._image_size
+
+    @property
+    def camera_lat(self) -> float | None:
+        """Camera latitude (degrees), origin of the world frame."""
+        return self._camera_lat
+
+    @property
+    def camera_lon(self) -> float | None:
+        """Camera longitude (degrees), origin of the world frame."""
+        return self._camera_lon
+
+    @property
+    def max_screen_radius(self) -> float:
+        """Largest screen distance from the centre that the lens model can undistort (inf when K1 >= 0)."""
+        return self._rs_max
+
+    @property
+    def horizon_line_ideal(self) -> tuple[float, float, float]:
+        """(a, b, c) with a x_p + b y_p + c = 0 on the horizon, a^2 + b^2 = 1, negative in front (sea side)."""
+        return self._horizon
+
+    @property
+    def heading_deg(self) -> float:
+        """Camera heading by the paper's method, degrees clockwise from north in [0, 360); NaN if undefined."""
+        return self._heading
+
+    # ----------------------------------------------------------------- lens
+    def distort(self, xp, yp):
+        """Ideal pixel -> screen pixel: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2)."""
+        cx, cy = self._center
+        dx = _arr(xp) - cx
+        dy = _arr(yp) - cy
+        f = 1.0 + self._K1 * (dx * dx + dy * dy)
+        return cx + dx * f, cy + dy * f
+
+    def undistort(self, xs, ys):
+        """Screen pixel -> ideal pixel (Newton on the radius, < 1e-6 px); NaN where the lens model has no inverse."""
+        xp, yp, _ = self._undistort_ok(xs, ys)
+        return xp, yp
+
+    def _undistort_ok(self, xs, ys):
+        """Undistort and report where it converged on the monotonic branch of the lens model."""
+        cx, cy = self._center
+        dx = _arr(xs) - cx
+        dy = _arr(ys) - cy
+        dx, dy = np.broadcast_arrays(dx, dy)
+        rs = np.hypot(dx, dy)
+        K1 = self._K1
+        finite = np.isfinite(rs)
+        if K1 == 0.0:
+            ok = finite
+            with np.errstate(invalid="ignore"):
+                return np.where(ok, cx + dx, np.nan), np.where(ok, cy + dy, np.nan), ok
+        rs_safe = np.where(finite, rs, 0.0)
+        u = rs_safe.copy()
+        reachable = finite & (rs_safe <= self._rs_max)
+        if K1 < 0:
+            # Newton from r_s approaches the root monotonically from below, but could cross the fold on
+            # rounding near the limit; keep iterates on the monotonic branch.
+            u = np.minimum(u, self._r_fold)
+        active = reachable.copy()
+        for _ in range(_UNDISTORT_MAX_ITER):
+            if not active.any():
+                break
+            ua = u[active]
+            resid = ua + K1 * ua ** 3 - rs_safe[active]
+            deriv = 1.0 + 3.0 * K1 * ua * ua
+            step = resid / np.where(deriv > 1e-12, deriv, 1e-12)
+            ua = ua - step
+            if K1 < 0:
+                ua = np.minimum(ua, self._r_fold)
+            u[active] = ua
+            done = np.abs(step) < 1e-12 * np.maximum(1.0, ua)
+            idx = np.flatnonzero(active)
+            active[idx[done]] = False
+        resid = np.abs(u + K1 * u ** 3 - rs_safe)
+        ok = reachable & (resid < UNDISTORT_TOLERANCE_PX) & (u >= 0)
+        if K1 < 0:
+            ok &= u <= self._r_fold
+        scale = np.where(rs_safe > 0, u / np.where(rs_safe > 0, rs_safe, 1.0), 1.0)
+        xp = np.where(ok, cx + dx * scale, np.nan)
+        yp = np.where(ok, cy + dy * scale, np.nan)
+        return xp, yp, ok
+
+    def _ideal_in_lens_domain(self, xp, yp):
+        cx, cy = self._center
+        r2 = (_arr(xp) - cx) ** 2 + (_arr(yp) - cy) ** 2
+        return np.isfinite(r2) & (r2 < self._r_fold ** 2)
+
+    # ----------------------------------------------------------------- plane <-> ideal
+    def zp_of_world(self, xw, yw):
+        """z_p of world points (negative in front of the camera; |z_p| grows with distance)."""
+        h = self._H[2]
+        return h[0] * _arr(xw) + h[1] * _arr(yw) + h[2]
+
+    def world_to_ideal(self, xw, yw):
+        """World metres -> (x_p, y_p, z_p), the paper's homography equation (NaN x_p, y_p where z_p = 0)."""
+        xw = _arr(xw)
+        yw = _arr(yw)
+        H = self._H
+        zp = H[2, 0] * xw + H[2, 1] * yw + H[2, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xp = (H[0, 0] * xw + H[0, 1] * yw + H[0, 2]) / zp
+            yp = (H[1, 0] * xw + H[1, 1] * yw + H[1, 2]) / zp
+        bad = ~np.isfinite(xp) | ~np.isfinite(yp)
+        return np.where(bad, np.nan, xp), np.where(bad, np.nan, yp), zp
+
+    def ideal_to_world(self, xp, yp):
+        """Ideal pixel -> (x_w, y_w, valid): valid only below the horizon (z_p < 0); NaN elsewhere."""
+        xp = _arr(xp)
+        yp = _arr(yp)
+        G = self._Hinv
+        W = G[2, 0] * xp + G[2, 1] * yp + G[2, 2]
+        scale = np.abs(G[2, 0] * xp) + np.abs(G[2, 1] * yp) + abs(G[2, 2])
+        valid = np.isfinite(W) & (W < -_HORIZON_EPS * scale)
+        Wsafe = np.where(valid, W, -1.0)
+        xw = (G[0, 0] * xp + G[0, 1] * yp + G[0, 2]) / Wsafe
+        yw = (G[1, 0] * xp + G[1, 1] * yp + G[1, 2]) / Wsafe
+        valid &= np.isfinite(xw) & np.isfinite(yw)
+        return np.where(valid, xw, np.nan), np.where(valid, yw, np.nan), valid
+
+    # ----------------------------------------------------------------- plane <-> screen
+    def world_to_screen(self, xw, yw):
+        """World metres -> (x_s, y_s, in_front).
+
+        ``in_front`` is True where the point is in front of the camera (z_p < 0) and inside the lens model's
+        domain, i.e. where (x_s, y_s) is meaningful; elsewhere x_s, y_s are NaN. Points in front may still be
+        outside the image: use ``in_image``.
+        """
+        xp, yp, zp = self.world_to_ideal(xw, yw)
+        in_front = (zp < 0) & self._ideal_in_lens_domain(xp, yp)
+        xs, ys = self.distort(xp, yp)
+        return np.where(in_front, xs, np.nan), np.where(in_front, ys, np.nan), in_front
+
+    def screen_to_world(self, xs, ys):
+        """Screen pixel -> (x_w, y_w, valid) on the sea plane; invalid (NaN) on/above the horizon or off-lens."""
+        xp, yp, ok = self._undistort_ok(xs, ys)
+        xw, yw, valid = self.ideal_to_world(xp, yp)
+        valid &= ok
+        return np.where(valid, xw, np.nan), np.where(valid, yw, np.nan), valid
+
+    def in_image(self, xs, ys, margin: float = 0.0):
+        """True where the screen point lies inside the image (optionally shrunk by ``margin`` pixels)."""
+        width, height = self._image_size
+        xs = _arr(xs)
+        ys = _arr(ys)
+        return (xs >= margin) & (xs <= width - margin) & (ys >= margin) & (ys <= height - margin)
+
+    # ----------------------------------------------------------------- GPS
+    def _require_position(self):
+        if self._camera_lat is None:
+            raise CalibrationError(
+                "this camera model has no camera position: set camera_lat/camera_lon in the calibration file")
+        return self._camera_lat, self._camera_lon
+
+    def gps_to_world(self, lat, lon):
+        """WGS-84 degrees -> world metres about the camera."""
+        lat0, lon0 = self._require_position()
+        return geodesy.gps_to_local(lat, lon, lat0, lon0)
+
+    def world_to_gps(self, xw, yw):
+        """World metres about the camera -> WGS-84 degrees."""
+        lat0, lon0 = self._require_position()
+        return geodesy.local_to_gps(xw, yw, lat0, lon0)
+
+    def gps_to_screen(self, lat, lon):
+        """WGS-84 degrees -> (x_s, y_s, in_front), see ``world_to_screen``."""
+        xw, yw = self.gps_to_world(lat, lon)
+        return self.world_to_screen(xw, yw)
+
+    def screen_to_gps(self, xs, ys):
+        """Screen pixel -> (lat, lon, valid); NaN where invalid (on/above the horizon, off-lens)."""
+        lat0, lon0 = self._require_position()
+        xw, yw, valid = self.screen_to_world(xs, ys)
+        lat, lon = geodesy.local_to_gps(xw, yw, lat0, lon0)
+        return lat, lon, valid
+
+    # ----------------------------------------------------------------- horizon and heading
+    def horizon_y(self, xs):
+        """Screen y of the horizon at screen x (NaN where the horizon is vertical or off the lens domain)."""
+        xs = _arr(xs)
+        a, b, c = self._horizon
+        if abs(b) < 1e-9:
+            return np.full(xs.shape, np.nan)
+        cx, cy = self._center
+        K1 = self._K1
+        slope = -a / b
+        xp = xs.copy()
+        for _ in range(60):
+            yp = -(a * xp + c) / b
+            dx = xp - cx
+            dy = yp - cy
+            f = 1.0 + K1 * (dx * dx + dy * dy)
+            resid = cx + dx * f - xs
+            deriv = f + 2.0 * K1 * dx * (dx + dy * slope)
+            step = resid / np.where(np.abs(deriv) > 1e-12, deriv, 1e-12)
+            xp = xp - step
+            if np.all(~np.isfinite(step) | (np.abs(step) < 1e-10)):
+                break
+        yp = -(a * xp + c) / b
+        ok = self._ideal_in_lens_domain(xp, yp)
+        _, ys = self.distort(xp, yp)
+        ok &= np.isfinite(ys) & (np.abs(self.distort(xp, yp)[0] - xs) < 1e-6)
+        return np.where(ok, ys, np.nan)
+
+    def _compute_heading(self) -> float:
+        a, b, c = self._horizon
+        G = self._Hinv
+        cx, cy = self._center
+        if abs(b) < 1e-12:
+            # No usable horizon (camera looking down): bearing of the ground under the image centre instead.
+            xw, yw, valid = self.ideal_to_world(cx, cy)
+            return float(math.degrees(math.atan2(xw, yw)) % 360.0) if bool(valid) else math.nan
+        y_hor = -(a * cx + c) / b
+        direction = G[:2] @ np.array([cx, y_hor, 1.0])
+        # The vanishing direction is defined up to sign: take the one pointing at the sea in front.
+        p_front = np.array([cx, y_hor - 1e-3 * math.copysign(1.0, b), 1.0])
+        w_front = G @ p_front
+        front_point = w_front[:2] / w_front[2]
+        if direction @ front_point < 0:
+            direction = -direction
+        return float(math.degrees(math.atan2(direction[0], direction[1])) % 360.0)
+
+    # ----------------------------------------------------------------- uncertainty
+    def screen_to_world_jacobian(self, xs, ys):
+        """d(x_w, y_w)/d(x_s, y_s), shape (..., 2, 2); NaN where the point is invalid.
+
+        Propagate pixel noise with ``J @ cov_px @ J.T`` to get a world covariance in m^2.
+        """
+        xp, yp, ok = self._undistort_ok(xs, ys)
+        xw, yw, valid = self.ideal_to_world(xp, yp)
+        valid &= ok
+        G = self._Hinv
+        W = G[2, 0] * xp + G[2, 1] * yp + G[2, 2]
+        # world wrt ideal: (G[:2,:2] - w g3^T) / W
+        Jh = np.empty(np.shape(xw) + (2, 2))
+        Jh[..., 0, 0] = (G[0, 0] - xw * G[2, 0]) / W
+        Jh[..., 0, 1] = (G[0, 1] - xw * G[2, 1]) / W
+        Jh[..., 1, 0] = (G[1, 0] - yw * G[2, 0]) / W
+        Jh[..., 1, 1] = (G[1, 1] - yw * G[2, 1]) / W
+        # screen wrt ideal: f I + 2 K1 d d^T, inverted in closed form
+        cx, cy = self._center
+        dx = xp - cx
+        dy = yp - cy
+        f = 1.0 + self._K1 * (dx * dx + dy * dy)
+        k2 = 2.0 * self._K1
+        a11 = f + k2 * dx * dx
+        a12 = k2 * dx * dy
+        a22 = f + k2 * dy * dy
+        det = a11 * a22 - a12 * a12
+        Jd_inv = np.empty_like(Jh)
+        Jd_inv[..., 0, 0] = a22 / det
+        Jd_inv[..., 0, 1] = -a12 / det
+        Jd_inv[..., 1, 0] = -a12 / det
+        Jd_inv[..., 1, 1] = a11 / det
+        J = Jh @ Jd_inv
+        return np.where(valid[..., None, None], J, np.nan)
+
+    # ----------------------------------------------------------------- parameters
+    def to_params(self) -> dict:
+        """The ``camera:`` parameter block: plain Python numbers, ROS-parameter friendly (doubles stay doubles)."""
+        width, height = self._image_size
+        cx, cy = self._center
+        params: dict[str, Any] = {
+            "camera_lat": float(self._camera_lat) if self._camera_lat is not None else float("nan"),
+            "camera_lon": float(self._camera_lon) if self._camera_lon is not None else float("nan"),
+            "image_width": int(width),
+            "image_height": int(height),
+            "H": [float(v) for v in self._H.ravel()],
+            "K1": float(self._K1),
+            "center_x": float(cx),
+            "center_y": float(cy),
+            "heading_deg": float(self._heading),
+        }
+        a, b, c = self._horizon
+        params["horizon_ideal_abc"] = [float(a), float(b), float(c)]
+        ys = self.horizon_y(np.array([0.0, cx, float(width)]))
+        params["horizon_y_left"] = float(ys[0])
+        params["horizon_y_center"] = float(ys[1])
+        params["horizon_y_right"] = float(ys[2])
+        return params
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], where: str = "camera") -> CameraModel:
+        """Build from a ``camera:`` parameter block; CalibrationError naming the key for missing/mistyped values.
+
+        Derived keys (``heading_deg``, ``horizon_*``) are informational and recomputed from H.
+        """
+        if not isinstance(params, Mapping):
+            raise CalibrationError(f"{where}: expected a mapping of calibration parameters, got {type(params).__name__}")
+        missing = [k for k in PARAM_KEYS_REQUIRED if k not in params]
+        if missing:
+            raise CalibrationError(
+                f"{where}: missing key(s) {', '.join(missing)}; write the file with the calibrate tool")
+
+        def number(key):
+            value = params[key]
+            if not _is_number(value):
+                raise CalibrationError(f"{where}.{key} must be a number, got {value!r} ({type(value).__name__})")
+            if not math.isfinite(float(value)):
+                raise CalibrationError(f"{where}.{key} must be finite, got {value!r}")
+            return float(value)
+
+        def integer(key):
+            value = number(key)
+            if value != int(value) or value <= 0:
+                raise CalibrationError(f"{where}.{key} must be a positive integer, got {params[key]!r}")
+            return int(value)
+
+        H = params["H"]
+        if isinstance(H, str | bytes) or not hasattr(H, "__len__"):
+            raise CalibrationError(f"{where}.H must be a list of 9 numbers (row-major), got {H!r}")
+        H_flat = list(np.asarray(H, dtype=object).ravel())
+        if len(H_flat) != 9:
+            raise CalibrationError(f"{where}.H must have 9 numbers (3x3 row-major), got {len(H_flat)}")
+        for i, v in enumerate(H_flat):
+            if not _is_number(v):
+                raise CalibrationError(f"{where}.H[{i}] must be a number, got {v!r} ({type(v).__name__})")
+        try:
+            return cls(
+                np.array(H_flat, dtype=float).reshape(3, 3),
+                K1=number("K1"),
+                center=(number("center_x"), number("center_y")),
+                image_size=(integer("image_width"), integer("image_height")),
+                camera_lat=number("camera_lat"),
+                camera_lon=number("camera_lon"),
+            )
+        except CalibrationError as exc:
+            raise CalibrationError(f"{where}: {exc}") from None
+
+    def __repr__(self) -> str:
+        return (f"CameraModel(H={self._H.tolist()!r}, K1={self._K1!r}, center={self._center!r}, "
+                f"image_size={self._image_size!r}, camera_lat={self._camera_lat!r}, camera_lon={self._camera_lon!r})")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CameraModel):
+            return NotImplemented
+        return (np.array_equal(self._H, other._H) and self._K1 == other._K1 and self._center == other._center
+                and self._image_size == other._image_size and self._camera_lat == other._camera_lat
+                and self._camera_lon == other._camera_lon)
+
+    __hash__ = None  # type: ignore[assignment]
