@@ -224,13 +224,17 @@ class CameraModel:
         dx = _arr(xs) - cx
         dy = _arr(ys) - cy
         dx, dy = np.broadcast_arrays(dx, dy)
+        shape = dx.shape
+        dx = dx.ravel()
+        dy = dy.ravel()
         rs = np.hypot(dx, dy)
         K1 = self._K1
         finite = np.isfinite(rs)
         if K1 == 0.0:
             ok = finite
             with np.errstate(invalid="ignore"):
-                return np.where(ok, cx + dx, np.nan), np.where(ok, cy + dy, np.nan), ok
+                return (np.where(ok, cx + dx, np.nan).reshape(shape), np.where(ok, cy + dy, np.nan).reshape(shape),
+                        ok.reshape(shape))
         rs_safe = np.where(finite, rs, 0.0)
         u = rs_safe.copy()
         reachable = finite & (rs_safe <= self._rs_max)
@@ -260,7 +264,7 @@ class CameraModel:
         scale = np.where(rs_safe > 0, u / np.where(rs_safe > 0, rs_safe, 1.0), 1.0)
         xp = np.where(ok, cx + dx * scale, np.nan)
         yp = np.where(ok, cy + dy * scale, np.nan)
-        return xp, yp, ok
+        return xp.reshape(shape), yp.reshape(shape), ok.reshape(shape)
 
     def _ideal_in_lens_domain(self, xp, yp):
         cx, cy = self._center
@@ -438,26 +442,33 @@ class CameraModel:
 
     # ----------------------------------------------------------------- parameters
     def to_params(self) -> dict:
-        """The ``camera:`` parameter block: plain Python numbers, ROS-parameter friendly (doubles stay doubles)."""
+        """The ``camera:`` parameter block: plain Python numbers, ROS-parameter friendly (doubles stay doubles).
+
+        ``heading_deg``, ``horizon_ideal_abc`` (a x_p + b y_p + c = 0, ideal pixels) and ``horizon_y_center``
+        (screen y of the horizon at x_c) are derived from H for people and plots; loaders recompute them.
+        """
         width, height = self._image_size
         cx, cy = self._center
-        params: dict[str, Any] = {
-            "camera_lat": float(self._camera_lat) if self._camera_lat is not None else float("nan"),
-            "camera_lon": float(self._camera_lon) if self._camera_lon is not None else float("nan"),
+        params: dict[str, Any] = {}
+        if self._camera_lat is not None:
+            params["camera_lat"] = float(self._camera_lat)
+            params["camera_lon"] = float(self._camera_lon)
+        params.update({
             "image_width": int(width),
             "image_height": int(height),
             "H": [float(v) for v in self._H.ravel()],
             "K1": float(self._K1),
             "center_x": float(cx),
             "center_y": float(cy),
-            "heading_deg": float(self._heading),
-        }
+        })
+        # Derived, informational (recomputed from H on load); NaN is left out because ROS YAML cannot hold it.
+        if math.isfinite(self._heading):
+            params["heading_deg"] = float(self._heading)
         a, b, c = self._horizon
         params["horizon_ideal_abc"] = [float(a), float(b), float(c)]
-        ys = self.horizon_y(np.array([0.0, cx, float(width)]))
-        params["horizon_y_left"] = float(ys[0])
-        params["horizon_y_center"] = float(ys[1])
-        params["horizon_y_right"] = float(ys[2])
+        y_center = float(self.horizon_y(np.array(cx)))
+        if math.isfinite(y_center):
+            params["horizon_y_center"] = y_center
         return params
 
     @classmethod

@@ -609,7 +609,8 @@ class MultiTargetTracker:
                 self.counters.capacity_drops += 1
                 continue
             track = _Track(track_id=f"{cfg.id_prefix}{self._next_id}",
-                           kf=self._new_filter(centers[di], sizes[di]), stamp=stamp, first_seen=stamp, last_seen=stamp, size=sizes[di].copy(),
+                           kf=self._new_filter(centers[di], sizes[di]), stamp=stamp, first_seen=stamp,
+                           last_seen=stamp, size=sizes[di].copy(),
                            confidence=float(confs[di]), history=deque(maxlen=cfg.history_length))
             self._next_id += 1
             self.counters.tracks_created += 1
