@@ -1,0 +1,405 @@
+"""Reader for a data folder laid out like ``../shared/aitas`` (AI Tracks at Sea development set).
+
+Layout: ``camera.json`` and ``frames.csv`` are required; ``screen_labels.csv``, ``target_gps_fixes.csv``,
+``gt_1hz.csv`` and ``videos.csv`` are optional (missing ones give empty results). Every time is returned as UNIX
+epoch seconds: ``frames.csv`` holds ISO UTC, the other files seconds since 00:00 UTC of the recording day,
+which is taken from ``frames.csv`` (per video).
+
+A malformed file raises DataError naming the file, the row (1-based, header = row 1) and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vessel_calib.camera_model import CameraModel
+from vessel_calib.errors import CalibrationError, DataError
+from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
+
+DEFAULT_CALIBRATION = "paper_corrected_H00_negative"
+TRAIN_VIDEOS = (7, 8, 9, 10, 11, 12)
+VALIDATION_VIDEOS = (13, 14, 15, 16, 17)
+
+
+def repo_root() -> Path:
+    """The project root (the folder holding ``src/``), found from this file's location or the working directory."""
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "src" / "vessel_calib").is_dir() and (parent / "pyproject.toml").exists():
+            return parent
+    # Installed (non-symlink) package: fall back to the working directory or its parents.
+    cwd = Path.cwd().resolve()
+    for parent in (cwd, *cwd.parents):
+        if (parent / "src" / "vessel_calib").is_dir():
+            return parent
+    return cwd
+
+
+def default_data_dir() -> Path | None:
+    """``$VESSEL_DATA`` if set, else ``<repo>/../shared/aitas``; None when that folder does not exist."""
+    env = os.environ.get("VESSEL_DATA")
+    candidates = [Path(env).expanduser()] if env else []
+    candidates.append(repo_root().parent / "shared" / "aitas")
+    for candidate in candidates:
+        if (candidate / "camera.json").is_file():
+            return candidate
+    return None
+
+
+def parse_videos(spec: str | Iterable[int] | None) -> list[int] | None:
+    """``"7-12"``, ``"7,9,13-17"`` or an iterable of ints -> sorted list; None stays None (all videos)."""
+    if spec is None:
+        return None
+    if not isinstance(spec, str):
+        return sorted({int(v) for v in spec})
+    videos: set[int] = set()
+    for part in spec.replace(" ", "").split(","):
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                lo, hi = part.split("-", 1)
+                lo_i, hi_i = int(lo), int(hi)
+                if hi_i < lo_i or lo_i < 0:
+                    raise ValueError
+                videos.update(range(lo_i, hi_i + 1))
+            else:
+                if int(part) < 0:
+                    raise ValueError
+                videos.add(int(part))
+        except ValueError:
+            raise DataError(f"bad video list {spec!r}: use e.g. 7-12 or 7,9,13-17") from None
+    if not videos:
+        raise DataError(f"bad video list {spec!r}: it names no video")
+    return sorted(videos)
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of ``frames.csv``."""
+
+    video: int
+    frame: int
+    stamp: float
+    path: Path
+    has_label: bool = False
+
+
+@dataclass(frozen=True)
+class LabelRecord:
+    """One hand-drawn box of the vessel of interest with its GPS position at that instant."""
+
+    video: int
+    frame: int
+    stamp: float
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    lat: float
+    lon: float
+    gps_ok: bool
+    primary: bool = True
+    split: str = ""
+
+    @property
+    def center(self) -> tuple[float, float]:
+        """Box centre (x, y) in pixels."""
+        return (0.5 * (self.x1 + self.x2), 0.5 * (self.y1 + self.y2))
+
+
+@dataclass(frozen=True)
+class GtRecord:
+    """One row of ``gt_1hz.csv``: the vessel's GPS at a whole second inside a video."""
+
+    video: int
+    stamp: float
+    lat: float
+    lon: float
+    valid: bool
+    in_view: bool
+    dist_m: float
+    frame: float = math.nan
+    x_ref: float = math.nan
+    y_ref: float = math.nan
+
+
+class _Csv:
+    """A CSV file read into dict rows with typed accessors that raise DataError naming file, row and column."""
+
+    def __init__(self, path: Path, required: Iterable[str]):
+        self.path = path
+        try:
+            with path.open(newline="", encoding="utf-8-sig") as fh:
+                reader = csv.DictReader(fh)
+                self.fields = [f.strip() for f in (reader.fieldnames or [])]
+                self.rows = [{(k or "").strip(): (v if isinstance(v, str) else "") for k, v in r.items()}
+                             for r in reader]
+        except OSError as exc:
+            raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
+        except (UnicodeDecodeError, csv.Error) as exc:
+            raise DataError(f"{path}: not a readable CSV file ({exc})") from None
+        missing = [c for c in required if c not in self.fields]
+        if missing:
+            raise DataError(f"{path}: missing column(s) {', '.join(missing)} (found: {', '.join(self.fields)})")
+
+    def _fail(self, i: int, col: str, value: str, what: str):
+        raise DataError(f"{self.path}, row {i + 2}, column '{col}': {what}, got {value!r}")
+
+    def float(self, i: int, col: str, allow_empty: bool = False) -> float:
+        value = self.rows[i].get(col, "").strip()
+        if value == "" and allow_empty:
+            return math.nan
+        try:
+            number = float(value)
+        except ValueError:
+            self._fail(i, col, value, "expected a number")
+        if not math.isfinite(number) and not allow_empty:
+            self._fail(i, col, value, "expected a finite number")
+        return number
+
+    def int(self, i: int, col: str) -> int:
+        value = self.rows[i].get(col, "").strip()
+        try:
+            number = float(value)
+            if number != int(number):
+                raise ValueError
+            return int(number)
+        except (ValueError, OverflowError):
+            self._fail(i, col, value, "expected an integer")
+
+    def flag(self, i: int, col: str, default: bool = False) -> bool:
+        value = self.rows[i].get(col, "").strip().lower()
+        if value == "" and col not in self.fields:
+            return default
+        if value in ("1", "true", "yes"):
+            return True
+        if value in ("0", "false", "no", ""):
+            return False
+        self._fail(i, col, value, "expected 0 or 1")
+
+    def time(self, i: int, col: str) -> float:
+        value = self.rows[i].get(col, "")
+        try:
+            return parse_time(value)
+        except ValueError:
+            self._fail(i, col, value, "expected an ISO-8601 UTC time like 2020-09-30T19:33:58.835Z")
+
+
+class Dataset:
+    """A data folder laid out like ``../shared/aitas``; see the module docstring."""
+
+    def __init__(self, path):
+        self.path = Path(path).expanduser()
+        if not self.path.is_dir():
+            raise DataError(f"data folder {self.path} does not exist; pass --data DIR or set VESSEL_DATA")
+        cam_path = self.path / "camera.json"
+        if not cam_path.is_file():
+            raise DataError(f"{cam_path} is missing: a data folder needs camera.json (camera position, image size)")
+        try:
+            self.camera = json.loads(cam_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{cam_path}: not valid JSON ({exc})") from None
+        if not isinstance(self.camera, dict):
+            raise DataError(f"{cam_path}: expected a JSON object")
+        for key in ("camera_lat", "camera_lon"):
+            value = self.camera.get(key)
+            if not isinstance(value, int | float) or isinstance(value, bool):
+                raise DataError(f"{cam_path}: '{key}' must be a number (degrees), got {value!r}")
+        if not (self.path / "frames.csv").is_file():
+            raise DataError(f"{self.path / 'frames.csv'} is missing: a data folder needs frames.csv")
+        self._frames: list[FrameRecord] | None = None
+        self._video_ref: dict[int, float] | None = None
+
+    def __repr__(self) -> str:
+        return f"Dataset({str(self.path)!r})"
+
+    # ----------------------------------------------------------------- camera
+    @property
+    def camera_lat(self) -> float:
+        """Camera latitude from camera.json."""
+        return float(self.camera["camera_lat"])
+
+    @property
+    def camera_lon(self) -> float:
+        """Camera longitude from camera.json."""
+        return float(self.camera["camera_lon"])
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) from camera.json (default 1280x720)."""
+        return int(self.camera.get("image_width", 1280)), int(self.camera.get("image_height", 720))
+
+    @property
+    def center(self) -> tuple[float, float]:
+        """Distortion centre from camera.json (default: image centre)."""
+        width, height = self.image_size
+        c = self.camera.get("distortion_centre") or (width / 2.0, height / 2.0)
+        return float(c[0]), float(c[1])
+
+    def camera_model(self, which: str = DEFAULT_CALIBRATION) -> CameraModel:
+        """The calibration ``which`` of camera.json (default: the paper's, with the H[0][0] sign corrected)."""
+        cals = self.camera.get("calibrations") or {}
+        if which not in cals:
+            raise DataError(
+                f"{self.path / 'camera.json'} has no calibration '{which}' (has: {', '.join(cals) or 'none'})")
+        cal = cals[which]
+        try:
+            return CameraModel(cal["H"], cal["K1"], center=self.center, image_size=self.image_size,
+                               camera_lat=self.camera_lat, camera_lon=self.camera_lon)
+        except (KeyError, CalibrationError) as exc:
+            raise DataError(f"{self.path / 'camera.json'}: calibration '{which}' unusable: {exc}") from None
+
+    # ----------------------------------------------------------------- frames
+    def frames(self, videos=None) -> list[FrameRecord]:
+        """Frames of the given videos (all by default), sorted by video and frame."""
+        if self._frames is None:
+            table = _Csv(self.path / "frames.csv", ("video", "frame", "utc"))
+            has_file = "file" in table.fields
+            out = []
+            for i, row in enumerate(table.rows):
+                video = table.int(i, "video")
+                frame = table.int(i, "frame")
+                rel = row["file"].strip() if has_file and row["file"].strip() else f"frames/{video}/{frame:05d}.jpg"
+                out.append(FrameRecord(video, frame, table.time(i, "utc"), self.path / rel,
+                                       table.flag(i, "has_label")))
+            out.sort(key=lambda r: (r.video, r.frame))
+            self._frames = out
+        wanted = _video_set(videos)
+        return [f for f in self._frames if wanted is None or f.video in wanted]
+
+    def videos(self) -> list[int]:
+        """Video numbers present in frames.csv."""
+        return sorted({f.video for f in self.frames()})
+
+    def video_splits(self) -> dict[int, str]:
+        """video -> split (train/val/...) from videos.csv; empty if the file is absent."""
+        path = self.path / "videos.csv"
+        if not path.is_file():
+            return {}
+        table = _Csv(path, ("video",))
+        if "paper_split" not in table.fields:
+            return {}
+        return {table.int(i, "video"): row["paper_split"].strip() for i, row in enumerate(table.rows)}
+
+    def _reference_epoch(self, video: int) -> float:
+        """A time inside ``video`` (its first frame), or of the whole recording; sets the day of seconds-of-day."""
+        if self._video_ref is None:
+            refs: dict[int, float] = {}
+            for f in self.frames():
+                refs.setdefault(f.video, f.stamp)
+            self._video_ref = refs
+        if not self._video_ref:
+            raise DataError(f"{self.path / 'frames.csv'} has no rows: cannot tell the recording date")
+        return self._video_ref.get(video, next(iter(self._video_ref.values())))
+
+    def _sod_to_epoch(self, sod: float, video: int | None) -> float:
+        ref = self._reference_epoch(video) if video is not None else self._reference_epoch(-1)
+        return float(seconds_of_day_to_epoch(sod, ref))
+
+    # ----------------------------------------------------------------- labels
+    def labels(self, videos=None, primary_only: bool = True) -> list[LabelRecord]:
+        """Hand-labelled boxes (``screen_labels.csv``) of the given videos; [] if the file is absent."""
+        path = self.path / "screen_labels.csv"
+        if not path.is_file():
+            return []
+        table = _Csv(path, ("video", "frame", "t_utc_s", "x1", "y1", "x2", "y2", "lat", "lon"))
+        wanted = _video_set(videos)
+        out = []
+        for i, row in enumerate(table.rows):
+            video = table.int(i, "video")
+            if wanted is not None and video not in wanted:
+                continue
+            primary = table.flag(i, "primary", default=True)
+            if primary_only and not primary:
+                continue
+            x1, y1, x2, y2 = (table.float(i, c) for c in ("x1", "y1", "x2", "y2"))
+            if x2 < x1 or y2 < y1:
+                raise DataError(f"{path}, row {i + 2}, columns 'x1..y2': box ({x1}, {y1}, {x2}, {y2}) has x2 < x1 "
+                                "or y2 < y1")
+            lat = table.float(i, "lat", allow_empty=True)
+            lon = table.float(i, "lon", allow_empty=True)
+            gps_ok = table.flag(i, "gps_ok", default=math.isfinite(lat) and math.isfinite(lon))
+            if gps_ok and not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
+                raise DataError(f"{path}, row {i + 2}, column 'lat'/'lon': gps_ok=1 but no valid position "
+                                f"({row.get('lat')!r}, {row.get('lon')!r})")
+            stamp = self._sod_to_epoch(table.float(i, "t_utc_s"), video)
+            out.append(LabelRecord(video, table.int(i, "frame"), stamp, x1, y1, x2, y2, lat, lon, gps_ok,
+                                   primary, row.get("paper_split", "").strip()))
+        return out
+
+    def calibration_pairs(self, videos=None) -> tuple[np.ndarray, np.ndarray]:
+        """(screen (N,2) box centres, gps (N,2) lat/lon) of primary labels with gps_ok=1 in ``videos``."""
+        labels = [lab for lab in self.labels(videos, primary_only=True) if lab.gps_ok]
+        screen = np.array([lab.center for lab in labels], dtype=float).reshape(-1, 2)
+        gps = np.array([(lab.lat, lab.lon) for lab in labels], dtype=float).reshape(-1, 2)
+        return screen, gps
+
+    # ----------------------------------------------------------------- GPS
+    def gps_track(self) -> GpsTrack:
+        """The vessel's raw fixes (``target_gps_fixes.csv``, ``t_spread_s``) as epoch seconds; empty if absent."""
+        path = self.path / "target_gps_fixes.csv"
+        if not path.is_file():
+            return GpsTrack([], [], [])
+        table = _Csv(path, ("lat", "lon"))
+        time_col = "t_spread_s" if "t_spread_s" in table.fields else "utc_s" if "utc_s" in table.fields else None
+        if time_col is None:
+            raise DataError(f"{path}: missing column t_spread_s (or utc_s) (found: {', '.join(table.fields)})")
+        stamps, lats, lons = [], [], []
+        skipped = 0
+        for i in range(len(table.rows)):
+            lat = table.float(i, "lat", allow_empty=True)
+            lon = table.float(i, "lon", allow_empty=True)
+            if not (math.isfinite(lat) and math.isfinite(lon)):
+                skipped += 1
+                continue
+            if abs(lat) > 90 or abs(lon) > 180:
+                raise DataError(f"{path}, row {i + 2}, column 'lat'/'lon': ({lat}, {lon}) is not a WGS-84 position")
+            stamps.append(self._sod_to_epoch(table.float(i, time_col), None))
+            lats.append(lat)
+            lons.append(lon)
+        return GpsTrack(stamps, lats, lons, skipped_rows=skipped)
+
+    def gt_1hz(self, videos=None) -> list[GtRecord]:
+        """Ground truth at every whole second inside each video (``gt_1hz.csv``); [] if absent."""
+        path = self.path / "gt_1hz.csv"
+        if not path.is_file():
+            return []
+        table = _Csv(path, ("video", "t_utc_s", "lat", "lon", "valid"))
+        wanted = _video_set(videos)
+        out = []
+        for i in range(len(table.rows)):
+            video = table.int(i, "video")
+            if wanted is not None and video not in wanted:
+                continue
+            out.append(GtRecord(
+                video=video,
+                stamp=self._sod_to_epoch(table.float(i, "t_utc_s"), video),
+                lat=table.float(i, "lat", allow_empty=True),
+                lon=table.float(i, "lon", allow_empty=True),
+                valid=table.flag(i, "valid"),
+                in_view=table.flag(i, "in_view"),
+                dist_m=table.float(i, "dist_m", allow_empty=True) if "dist_m" in table.fields else math.nan,
+                frame=table.float(i, "frame", allow_empty=True) if "frame" in table.fields else math.nan,
+                x_ref=table.float(i, "x_ref", allow_empty=True) if "x_ref" in table.fields else math.nan,
+                y_ref=table.float(i, "y_ref", allow_empty=True) if "y_ref" in table.fields else math.nan,
+            ))
+        return out
+
+
+def _video_set(videos) -> set[int] | None:
+    if videos is None:
+        return None
+    if isinstance(videos, str):
+        return set(parse_videos(videos) or [])
+    if isinstance(videos, int):
+        return {videos}
+    return {int(v) for v in videos}

@@ -1,0 +1,245 @@
+"""The whole node graph as separate processes, for this pip-only install (no ``ros2 launch`` on PyPI).
+
+``GRAPH_NODES`` is the one description of the graph: the launch file ``vessel_graph.launch.py`` builds its
+``launch_ros`` nodes from it, and ``./vessel graph`` (this module) starts the same executables with the same
+parameter files, as ``ros2 run`` would. The demo and the benchmark drive the graph through ``GraphRunner``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from vessel_calib.errors import VesselError
+
+
+@dataclass(frozen=True)
+class GraphNode:
+    """One node of the graph: which executable, and what it is for."""
+
+    name: str
+    package: str
+    executable: str
+    role: str
+
+
+GRAPH_NODES: tuple[GraphNode, ...] = (
+    GraphNode("camera", "vessel_detect", "camera", "replays a bag, video, folder or device as images + /clock"),
+    GraphNode("detector", "vessel_detect", "detector", "ONNX detector: images -> /vessel/detections"),
+    GraphNode("tracker", "vessel_track", "tracker", "Kalman tracks in screen space -> /vessel/tracks/screen"),
+    GraphNode("fuser", "vessel_track", "fuser", "screen -> world, target choice -> /vessel/tracks"),
+    GraphNode("gps_publisher", "vessel_track", "gps_publisher", "-> /vessel/fix (target), /vessel/fixes"),
+)
+RECORDER = GraphNode("recorder", "vessel_detect", "recorder", "records the graph's outputs to an MCAP bag")
+
+
+def repo_root() -> Path:
+    """The repository root: ``$VESSEL_ROOT`` (set by ./vessel) or found from this file's location."""
+    if os.environ.get("VESSEL_ROOT"):
+        return Path(os.environ["VESSEL_ROOT"])
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "vessel").is_file() and (parent / "src").is_dir():
+            return parent
+    return Path.cwd()
+
+
+def install_dir() -> Path:
+    """The colcon install folder of the workspace."""
+    return repo_root() / "ros2_ws" / "install"
+
+
+def default_params_file() -> Path:
+    """The graph's parameter file for the challenge camera."""
+    return repo_root() / "config" / "aitas.yaml"
+
+
+def default_calibration_file() -> Path:
+    """The shipped calibration of the challenge camera (fitted on training videos 7-12)."""
+    return repo_root() / "config" / "aitas_camera.yaml"
+
+
+def executable_path(node: GraphNode) -> Path:
+    """Where colcon installed a node (``lib/<pkg>/<exe>``, what ``ros2 run`` starts)."""
+    path = install_dir() / node.package / "lib" / node.package / node.executable
+    if not path.is_file():
+        raise VesselError(f"{path} is not installed: run ./vessel setup (or colcon build) first")
+    return path
+
+
+@dataclass
+class RunningNode:
+    """A started node process and the file its output goes to."""
+
+    node: GraphNode
+    process: subprocess.Popen
+    log_path: Path | None
+    log_file: object = field(default=None, repr=False)
+
+
+class GraphRunner:
+    """Start nodes as processes with shared parameter files, stop them all with SIGINT like Ctrl-C."""
+
+    def __init__(
+        self,
+        params_files: Sequence[Path],
+        log_dir: Path | None = None,
+        env: dict[str, str] | None = None,
+        echo: bool = False,
+    ):
+        self.params_files = [Path(p) for p in params_files]
+        for path in self.params_files:
+            if not path.is_file():
+                raise VesselError(f"parameter file {path} not found: pass an existing file with --params/--calib")
+        self.log_dir = log_dir
+        self.env = dict(env if env is not None else os.environ)
+        self.echo = echo
+        self.running: dict[str, RunningNode] = {}
+
+    def start(self, node: GraphNode, parameters: dict[str, object] | None = None) -> RunningNode:
+        """Start one node with the parameter files plus ``-p name:=value`` overrides."""
+        args = [str(executable_path(node)), "--ros-args", "-r", f"__node:={node.name}"]
+        for path in self.params_files:
+            args += ["--params-file", str(path)]
+        for key, value in (parameters or {}).items():
+            args += ["-p", f"{key}:={_ros_value(value)}"]
+        log_file = None
+        log_path = None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            log_path = self.log_dir / f"{node.name}.log"
+            log_file = open(log_path, "w")
+        stdout = None if self.echo and log_file is None else (log_file or subprocess.DEVNULL)
+        process = subprocess.Popen(args, env=self.env, stdout=stdout, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
+        running = RunningNode(node, process, log_path, log_file)
+        self.running[node.name] = running
+        return running
+
+    def failed(self) -> list[str]:
+        """Names of nodes that exited with a non-zero status."""
+        return [name for name, r in self.running.items() if r.process.poll() not in (None, 0)]
+
+    def wait(self, name: str, timeout_s: float | None = None) -> int | None:
+        """Wait for one node to exit; its status, or None on time-out."""
+        try:
+            return self.running[name].process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop(self, names: Sequence[str] | None = None, timeout_s: float = 15.0) -> dict[str, int]:
+        """SIGINT the nodes (all by default, in reverse start order), wait, kill stragglers; exit statuses."""
+        chosen = list(names) if names is not None else list(reversed(list(self.running)))
+        for name in chosen:
+            process = self.running[name].process
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        statuses = {}
+        deadline = time.monotonic() + timeout_s
+        for name in chosen:
+            running = self.running[name]
+            try:
+                statuses[name] = running.process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                running.process.kill()
+                statuses[name] = running.process.wait()
+            if running.log_file is not None:
+                running.log_file.close()
+                running.log_file = None
+        return statuses
+
+    def log_tail(self, name: str, lines: int = 20) -> str:
+        """The last lines a node printed (for error messages)."""
+        running = self.running.get(name)
+        if running is None or running.log_path is None or not running.log_path.is_file():
+            return ""
+        if running.log_file is not None:
+            running.log_file.flush()
+        return "\n".join(running.log_path.read_text(errors="replace").splitlines()[-lines:])
+
+
+def _ros_value(value: object) -> str:
+    """A ``-p name:=value`` literal (YAML) for a Python value."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_ros_value(v) for v in value) + "]"
+    return str(value)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command line of ``./vessel graph``."""
+    parser = argparse.ArgumentParser(
+        prog="./vessel graph",
+        description="Start the whole node graph as separate processes (what vessel_graph.launch.py does for "
+        "ros2 launch). Ctrl-C stops every node.",
+    )
+    parser.add_argument("--source", help="camera source: a rosbag2 folder, .mcap, video file, image folder or "
+                        "device:N (default: the camera node's parameter)")
+    parser.add_argument("--params", type=Path, default=None, help="graph parameter file (default config/aitas.yaml)")
+    parser.add_argument("--calib", type=Path, default=None,
+                        help="calibration parameter file (default config/aitas_camera.yaml)")
+    parser.add_argument("--rate", type=float, default=None, help="replay rate: 1 real time, 10, 0 = as fast as "
+                        "the graph consumes")
+    parser.add_argument("--nodes", default=",".join(n.name for n in GRAPH_NODES),
+                        help="comma-separated subset of nodes to start (default: all)")
+    parser.add_argument("--record", type=Path, default=None, help="also record the outputs into this bag folder")
+    parser.add_argument("--log-dir", type=Path, default=None, help="write each node's output to DIR/<node>.log "
+                        "instead of the terminal")
+    parser.add_argument("--exit-at-end", action="store_true", help="stop the graph when the camera source ends")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the graph until Ctrl-C (or the end of the source with --exit-at-end)."""
+    args = parse_args(argv)
+    try:
+        params = [args.params or default_params_file(), args.calib or default_calibration_file()]
+        wanted = [name.strip() for name in args.nodes.split(",") if name.strip()]
+        known = {node.name: node for node in GRAPH_NODES}
+        unknown = [name for name in wanted if name not in known]
+        if unknown:
+            raise VesselError(f"unknown node(s) {unknown}: choose from {sorted(known)}")
+        runner = GraphRunner(params, log_dir=args.log_dir, echo=True)
+        stop_requested = threading.Event()
+        signal.signal(signal.SIGINT, lambda *_: stop_requested.set())
+        signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
+        if args.record is not None:
+            runner.start(RECORDER, {"output": str(args.record)})
+        for name in reversed(wanted):  # consumers first, so nothing the camera sends is missed
+            overrides: dict[str, object] = {}
+            if name == "camera":
+                if args.source:
+                    overrides["source"] = args.source
+                if args.rate is not None:
+                    overrides["rate"] = args.rate
+            runner.start(known[name], overrides)
+            print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
+        while not stop_requested.is_set():
+            time.sleep(0.2)
+            if args.exit_at_end and "camera" in runner.running and runner.running["camera"].process.poll() is not None:
+                print("[graph] camera source ended", file=sys.stderr)
+                time.sleep(2.0)
+                break
+            failed = runner.failed()
+            if failed:
+                print(f"[graph] node(s) exited with an error: {failed}", file=sys.stderr)
+                break
+        statuses = runner.stop()
+        print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
+        return 0 if all(code == 0 for code in statuses.values()) else 1
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,462 @@
+"""Synthetic detections of vessels on known paths, seen through a known camera: ground truth for the tracker.
+
+Vessels move on the sea plane (metres east/north of the camera, the project's world frame) along straight lines,
+arcs or waypoints; each frame projects them through a ``CameraModel``, draws a box whose size follows the
+box-size model ``w = a_w/|z_p| + b_w``, ``h = a_h/|z_p| + b_h`` (full-resolution pixels, fitted to the tight hand
+boxes of the challenge data), and then plays the detector: centre and size noise, misses, random false
+detections below the horizon, a static false detection (the mooring post of the challenge camera), vessels
+hidden behind nearer ones and scheduled occlusions. Everything is drawn from one seeded generator, so a
+scenario is reproducible.
+
+ROS-free; used by the tracker's and the fuser's tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vessel_calib.errors import DataError
+
+CHALLENGE_H = ((-441.0, 379.0, -1000.0), (-217.0, -56.5, -548.0), (-0.512, -0.144, 1.0))
+"""The paper's homography of the challenge camera with its sign typo corrected (``aitas/camera.json``)."""
+CHALLENGE_K1 = -4.053e-7
+CHALLENGE_CAMERA_LATLON = (32.70297, -117.234631)
+MOORING_POST_XYXY = (697.0, 652.0, 925.0, 720.0)
+"""Box of the mooring post at the bottom of every challenge frame, a frequent false detection, px."""
+
+
+def challenge_camera():
+    """The challenge camera: the paper's corrected calibration (H, K1, centre (640, 360), 1280x720)."""
+    from vessel_calib.camera_model import CameraModel
+
+    return CameraModel(CHALLENGE_H, CHALLENGE_K1, center=(640.0, 360.0), image_size=(1280, 720),
+                       camera_lat=CHALLENGE_CAMERA_LATLON[0], camera_lon=CHALLENGE_CAMERA_LATLON[1])
+
+
+def bearing_point(distance_m: float, bearing_deg: float) -> tuple[float, float]:
+    """World point (east, north), metres, at ``distance_m`` from the camera on ``bearing_deg`` (0 = north)."""
+    b = math.radians(bearing_deg)
+    return distance_m * math.sin(b), distance_m * math.cos(b)
+
+
+# ---------------------------------------------------------------------------------------------------- paths
+
+
+@dataclass(frozen=True)
+class LinePath:
+    """Straight line at constant speed: ``start_xy`` (m) at t = 0, moving on ``heading_deg`` (0 = north)."""
+
+    start_xy: tuple[float, float]
+    heading_deg: float
+    speed_mps: float
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        """(N, 2) east, north in metres at ``t`` seconds after the vessel's start."""
+        h = math.radians(self.heading_deg)
+        t = np.asarray(t, dtype=float).reshape(-1)
+        return np.c_[self.start_xy[0] + self.speed_mps * math.sin(h) * t,
+                     self.start_xy[1] + self.speed_mps * math.cos(h) * t]
+
+
+@dataclass(frozen=True)
+class ArcPath:
+    """Circular arc at constant speed around ``center_xy`` (m), starting on ``start_bearing_deg`` from it."""
+
+    center_xy: tuple[float, float]
+    radius_m: float
+    start_bearing_deg: float
+    speed_mps: float
+    clockwise: bool = True
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        """(N, 2) east, north in metres at ``t`` seconds after the vessel's start."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        turn = (1.0 if self.clockwise else -1.0) * self.speed_mps * t / self.radius_m
+        b = math.radians(self.start_bearing_deg) + turn
+        return np.c_[self.center_xy[0] + self.radius_m * np.sin(b), self.center_xy[1] + self.radius_m * np.cos(b)]
+
+
+@dataclass(frozen=True)
+class WaypointPath:
+    """Piecewise-straight path through ``points`` (m) at constant speed; stays at the last point."""
+
+    points: tuple[tuple[float, float], ...]
+    speed_mps: float
+
+    def __post_init__(self) -> None:
+        """Reject paths that cannot be followed."""
+        if len(self.points) < 2 or self.speed_mps <= 0:
+            raise DataError("WaypointPath needs at least two points and a positive speed")
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        """(N, 2) east, north in metres at ``t`` seconds after the vessel's start."""
+        pts = np.asarray(self.points, dtype=float)
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        s_knots = np.r_[0.0, np.cumsum(seg)]
+        s = np.clip(np.asarray(t, dtype=float).reshape(-1) * self.speed_mps, 0.0, s_knots[-1])
+        return np.c_[np.interp(s, s_knots, pts[:, 0]), np.interp(s, s_knots, pts[:, 1])]
+
+
+# ---------------------------------------------------------------------------------------------------- models
+
+
+@dataclass(frozen=True)
+class BoxSizeModel:
+    """Box size from the homography's z_p: ``w = a_w/|z_p| + b_w``, ``h = a_h/|z_p| + b_h``, full-res px.
+
+    Defaults: least squares on the 140 primary hand boxes of the challenge data with valid GPS (residual
+    standard deviation 19 px in w, 12 px in h). The paper's training boxes (1500/|z_p| + 25, 850/|z_p| + 25 at
+    half resolution) are looser on purpose.
+    """
+
+    a_w: float = 1856.0
+    b_w: float = 17.0
+    a_h: float = 853.0
+    b_h: float = 11.0
+
+    def size(self, abs_zp: np.ndarray) -> np.ndarray:
+        """(N, 2) box width and height in px for ``|z_p|``."""
+        abs_zp = np.asarray(abs_zp, dtype=float).reshape(-1)
+        return np.c_[self.a_w / abs_zp + self.b_w, self.a_h / abs_zp + self.b_h]
+
+
+@dataclass(frozen=True)
+class DetectorModel:
+    """How the simulated detector errs. Pixels are full resolution."""
+
+    center_std_px: float = 4.0
+    """Gaussian noise of a box centre (hand labels: ~2.7 px between two labelling passes)."""
+    size_std_frac: float = 0.08
+    """Gaussian noise of the box width and height, as a fraction of the true size."""
+    miss_prob: float = 0.1
+    """Probability that a visible vessel is not detected in a frame."""
+    clutter_rate: float = 0.3
+    """Mean number of random false detections per frame (Poisson), anywhere on the water below the horizon."""
+    clutter_size_px: tuple[float, float, float, float] = (12.0, 80.0, 8.0, 40.0)
+    """Range of false-detection sizes: w_min, w_max, h_min, h_max, px."""
+    static_clutter: tuple[tuple[float, float, float, float], ...] = (MOORING_POST_XYXY,)
+    """Boxes that are falsely detected at a fixed place (the mooring post), xyxy px."""
+    static_clutter_prob: float = 0.5
+    """Probability per frame that each static false detection fires."""
+    vessel_score_range: tuple[float, float] = (0.45, 0.95)
+    clutter_score_range: tuple[float, float] = (0.25, 0.6)
+    occlusion_overlap: float = 0.5
+    """A vessel is hidden (not detected) when a nearer vessel's box covers more than this fraction of its box."""
+    image_margin_px: float = 0.0
+    """A vessel whose box centre is closer than this to the image border is not detected."""
+
+
+@dataclass(frozen=True)
+class SimVessel:
+    """One vessel: an id (>= 0), a path and when it is on the water (seconds from the scenario start)."""
+
+    vessel_id: int
+    path: LinePath | ArcPath | WaypointPath
+    start_s: float = 0.0
+    end_s: float = math.inf
+    occlusions: tuple[tuple[float, float], ...] = ()
+    """Intervals (seconds from the scenario start) when the vessel is hidden from the detector."""
+    size_scale: float = 1.0
+    """Scale of the box-size model for this vessel (2: a vessel twice as large as the labelled boat)."""
+
+    def __post_init__(self) -> None:
+        """Ids must be non-negative: -1 marks clutter in the output."""
+        if self.vessel_id < 0:
+            raise DataError(f"vessel ids must be >= 0 (-1 marks clutter), got {self.vessel_id}")
+
+
+@dataclass
+class SimFrame:
+    """What the detector reports for one image, with the truth behind each box."""
+
+    stamp: float
+    """Epoch seconds."""
+    boxes_xyxy: np.ndarray
+    """(N, 4) px."""
+    scores: np.ndarray
+    """(N,)"""
+    gt_ids: np.ndarray
+    """(N,) vessel id of each box, -1 for a false detection."""
+
+    @property
+    def centers(self) -> np.ndarray:
+        """(N, 2) box centres, px."""
+        return (self.boxes_xyxy[:, :2] + self.boxes_xyxy[:, 2:]) / 2.0
+
+
+@dataclass
+class VesselTruth:
+    """Ground truth of one vessel at every frame stamp (NaN where it is not on the water or behind the camera)."""
+
+    stamps: np.ndarray
+    world_xy: np.ndarray
+    """(T, 2) metres east, north of the camera."""
+    screen_xy: np.ndarray
+    """(T, 2) projection of ``world_xy``, px (the true box centre)."""
+    box_wh: np.ndarray
+    """(T, 2) true box size, px."""
+    visible: np.ndarray
+    """(T,) on the water, in front of the camera, inside the image, not occluded."""
+    detected: np.ndarray
+    """(T,) a box of this vessel is in the frame's detections."""
+
+
+@dataclass
+class SimResult:
+    """A simulated run: the frames fed to the tracker and the truth to score it against."""
+
+    frames: list[SimFrame]
+    truth: dict[int, VesselTruth]
+    camera: object
+
+    @property
+    def stamps(self) -> np.ndarray:
+        """(T,) frame stamps, epoch seconds."""
+        return np.array([f.stamp for f in self.frames])
+
+    def truth_gps(self, vessel_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """(lat, lon) of a vessel at every frame stamp (needs a camera with a position)."""
+        xy = self.truth[vessel_id].world_xy
+        lat, lon = self.camera.world_to_gps(xy[:, 0], xy[:, 1])
+        return np.asarray(lat), np.asarray(lon)
+
+
+# ---------------------------------------------------------------------------------------------------- scenario
+
+
+@dataclass
+class Scenario:
+    """Vessels, a camera, a frame clock and a detector model; ``run()`` draws the frames."""
+
+    vessels: Sequence[SimVessel]
+    camera: object = None
+    """A ``vessel_calib.camera_model.CameraModel``; None: the challenge camera."""
+    duration_s: float = 180.0
+    frame_interval_s: float = 4.0
+    """Seconds between frames: ~4 s like the challenge frames, 0.03-0.1 s like a live camera."""
+    frame_jitter_s: float = 0.0
+    """Uniform jitter of each frame's stamp, seconds (a live camera's variable frame rate)."""
+    start_stamp: float = 1601494438.0
+    """Epoch seconds of the first frame (default: 2020-09-30 19:33:58 UTC, the challenge day)."""
+    detector: DetectorModel = field(default_factory=DetectorModel)
+    box_size: BoxSizeModel = field(default_factory=BoxSizeModel)
+    seed: int = 0
+
+    def run(self) -> SimResult:
+        """Simulate every frame; the same scenario and seed always give the same result."""
+        if self.frame_interval_s <= 0 or self.duration_s <= 0:
+            raise DataError("Scenario needs a positive duration_s and frame_interval_s")
+        ids = [v.vessel_id for v in self.vessels]
+        if len(set(ids)) != len(ids):
+            raise DataError(f"Scenario vessel ids must be unique, got {ids}")
+        camera = self.camera if self.camera is not None else challenge_camera()
+        rng = np.random.default_rng(self.seed)
+        det = self.detector
+        width, height = camera.image_size
+
+        rel = np.arange(0.0, self.duration_s + 1e-9, self.frame_interval_s)
+        if self.frame_jitter_s > 0:
+            rel = rel + rng.uniform(-self.frame_jitter_s, self.frame_jitter_s, len(rel))
+            rel = np.maximum.accumulate(np.maximum(rel, 0.0))
+        n_frames = len(rel)
+
+        truth: dict[int, VesselTruth] = {}
+        for v in self.vessels:
+            on_water = (rel >= v.start_s) & (rel <= v.end_s)
+            xy = v.path.position(rel - v.start_s)
+            xy[~on_water] = np.nan
+            xs, ys, in_front = camera.world_to_screen(xy[:, 0], xy[:, 1])
+            zp = np.abs(camera.zp_of_world(xy[:, 0], xy[:, 1]))
+            wh = v.size_scale * self.box_size.size(np.where(in_front, zp, np.nan))
+            scheduled = np.zeros(n_frames, bool)
+            for t0, t1 in v.occlusions:
+                scheduled |= (rel >= t0) & (rel <= t1)
+            m = det.image_margin_px
+            inside = in_front & on_water & (xs >= m) & (xs <= width - m) & (ys >= m) & (ys <= height - m)
+            truth[v.vessel_id] = VesselTruth(stamps=self.start_stamp + rel, world_xy=xy, screen_xy=np.c_[xs, ys],
+                                             box_wh=wh, visible=inside & ~scheduled,
+                                             detected=np.zeros(n_frames, bool))
+
+        horizon = float(np.nanmax(camera.horizon_y(np.linspace(0.0, width, 9))))
+        if not math.isfinite(horizon):
+            horizon = height / 2.0
+        frames: list[SimFrame] = []
+        for k in range(n_frames):
+            boxes: list[np.ndarray] = []
+            scores: list[float] = []
+            gt: list[int] = []
+            self._hide_behind_nearer(truth, k)
+            for v in self.vessels:
+                tr = truth[v.vessel_id]
+                if not tr.visible[k] or rng.random() < det.miss_prob:
+                    continue
+                c = tr.screen_xy[k] + rng.normal(0.0, det.center_std_px, 2)
+                wh = np.maximum(tr.box_wh[k] * (1.0 + rng.normal(0.0, det.size_std_frac, 2)), 2.0)
+                boxes.append(np.r_[c - wh / 2, c + wh / 2])
+                scores.append(float(rng.uniform(*det.vessel_score_range)))
+                gt.append(v.vessel_id)
+                tr.detected[k] = True
+            for _ in range(rng.poisson(det.clutter_rate)):
+                w = rng.uniform(det.clutter_size_px[0], det.clutter_size_px[1])
+                h = rng.uniform(det.clutter_size_px[2], det.clutter_size_px[3])
+                cx = rng.uniform(w / 2, width - w / 2)
+                cy = rng.uniform(min(horizon + h / 2, height - h / 2), height - h / 2)
+                boxes.append(np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2]))
+                scores.append(float(rng.uniform(*det.clutter_score_range)))
+                gt.append(-1)
+            for box in det.static_clutter:
+                if rng.random() < det.static_clutter_prob:
+                    jitter = rng.normal(0.0, 2.0, 4)
+                    boxes.append(np.asarray(box, dtype=float) + jitter)
+                    scores.append(float(rng.uniform(*det.clutter_score_range)))
+                    gt.append(-1)
+            order = rng.permutation(len(boxes))
+            frames.append(SimFrame(
+                stamp=float(self.start_stamp + rel[k]),
+                boxes_xyxy=np.array(boxes, dtype=float).reshape(-1, 4)[order],
+                scores=np.array(scores, dtype=float)[order],
+                gt_ids=np.array(gt, dtype=int)[order]))
+        return SimResult(frames=frames, truth=truth, camera=camera)
+
+    def _hide_behind_nearer(self, truth: dict[int, VesselTruth], k: int) -> None:
+        """Mark vessels mostly covered by a nearer vessel's box as not visible in frame ``k``."""
+        limit = self.detector.occlusion_overlap
+        ids = [i for i, tr in truth.items() if tr.visible[k]]
+        boxes = {i: np.r_[truth[i].screen_xy[k] - truth[i].box_wh[k] / 2,
+                          truth[i].screen_xy[k] + truth[i].box_wh[k] / 2] for i in ids}
+        depth = {i: float(np.hypot(*truth[i].world_xy[k])) for i in ids}
+        hidden = []
+        for i in ids:
+            for j in ids:
+                if j == i or depth[j] >= depth[i]:
+                    continue
+                a, b = boxes[i], boxes[j]
+                iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+                ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+                if iw * ih > limit * (a[2] - a[0]) * (a[3] - a[1]):
+                    hidden.append(i)
+                    break
+        for i in hidden:
+            truth[i].visible[k] = False
+
+
+def harbour_scenario(frame_interval_s: float = 4.0, duration_s: float = 180.0, seed: int = 0,
+                     detector: DetectorModel | None = None, camera=None, frame_jitter_s: float = 0.0) -> Scenario:
+    """The standard test scene on the challenge camera: three vessels, clutter and the mooring post.
+
+    * vessel 0: the "vessel of interest", ~300 m out, crossing the view from left to right at 2 m/s;
+    * vessel 1: ~150 m out, crossing right to left at 1.5 m/s: it passes in front of vessel 0 (on screen their
+      boxes overlap around t = 90 s, and vessel 0 is hidden behind it);
+    * vessel 2: on an arc ~450 m out at 3 m/s, hidden behind a (simulated) obstacle from t = 60 s to t = 70 s.
+    """
+    xa0, ya0 = bearing_point(300.0, 48.0)
+    xb0, yb0 = bearing_point(150.0, 103.0)
+    vessels = [
+        SimVessel(0, LinePath((xa0, ya0), heading_deg=167.0, speed_mps=2.0)),
+        SimVessel(1, LinePath((xb0, yb0), heading_deg=-13.0, speed_mps=1.5), size_scale=1.2),
+        SimVessel(2, ArcPath(center_xy=(0.0, 0.0), radius_m=450.0, start_bearing_deg=55.0, speed_mps=3.0),
+                  occlusions=((60.0, 70.0),), size_scale=1.5),
+    ]
+    return Scenario(vessels=vessels, camera=camera, duration_s=duration_s, frame_interval_s=frame_interval_s,
+                    frame_jitter_s=frame_jitter_s, detector=detector or DetectorModel(), seed=seed)
+
+
+# ---------------------------------------------------------------------------------------------------- scoring
+
+
+@dataclass
+class TrackingMetrics:
+    """How well a tracker followed a simulated run (only frames where a vessel was detected count)."""
+
+    id_switches: int
+    """Times a vessel's detections went to a different confirmed track than before (MOT-style)."""
+    tracks_per_vessel: dict[int, int]
+    """Number of distinct confirmed tracks that received each vessel's detections."""
+    false_confirmed_tracks: int
+    """Confirmed tracks whose detections were mostly clutter."""
+    confirmed_rmse_px: float
+    """RMS distance of confirmed, updated track centres to the vessel's true screen position."""
+    detection_rmse_px: float
+    """RMS distance of the same frames' raw detection centres to the true position."""
+    coverage: float
+    """Share of the frames where a vessel was visible in which it had a confirmed or coasting track."""
+    samples: int
+
+    def summary(self) -> str:
+        """One line for logs and benchmark output."""
+        return (f"id_switches={self.id_switches} tracks_per_vessel={self.tracks_per_vessel} "
+                f"false_confirmed={self.false_confirmed_tracks} confirmed_rmse={self.confirmed_rmse_px:.2f}px "
+                f"detection_rmse={self.detection_rmse_px:.2f}px coverage={self.coverage:.3f} n={self.samples}")
+
+
+def run_tracker(result: SimResult, update: Callable[[float, np.ndarray, np.ndarray], Iterable]) -> list[list]:
+    """Feed every frame to ``update(stamp, boxes, scores)`` (e.g. ``MultiTargetTracker.update``); its outputs."""
+    return [list(update(f.stamp, f.boxes_xyxy, f.scores)) for f in result.frames]
+
+
+def score_tracking(result: SimResult, outputs: Sequence[Sequence]) -> TrackingMetrics:
+    """Score tracker outputs (one list of ``TrackState`` per frame of ``result``) against the truth.
+
+    A track state's detection is found from its ``measured_center`` (the raw centre it was updated with),
+    which gives the vessel id behind it.
+    """
+    if len(outputs) != len(result.frames):
+        raise DataError(f"{len(outputs)} tracker outputs for {len(result.frames)} frames")
+    last_track: dict[int, str] = {}
+    switches = 0
+    tracks_of: dict[int, set[str]] = {}
+    votes: dict[str, list[int]] = {}
+    err_track: list[float] = []
+    err_det: list[float] = []
+    visible_frames = 0
+    covered_frames = 0
+    for k, (frame, states) in enumerate(zip(result.frames, outputs, strict=True)):
+        centers = frame.centers
+        tracked_vessels: set[int] = set()
+        for s in states:
+            if int(s.status) == 3:
+                continue
+            gt = -1
+            if s.measured_center is not None and len(centers):
+                d = np.hypot(*(centers - np.asarray(s.measured_center)).T)
+                j = int(np.argmin(d))
+                if d[j] < 1e-6:
+                    gt = int(frame.gt_ids[j])
+            if s.measured_center is not None:
+                votes.setdefault(s.track_id, []).append(gt)
+            if int(s.status) == 0:
+                continue
+            if gt >= 0:
+                tracked_vessels.add(gt)
+                if last_track.get(gt, s.track_id) != s.track_id:
+                    switches += 1
+                last_track[gt] = s.track_id
+                tracks_of.setdefault(gt, set()).add(s.track_id)
+                true_xy = result.truth[gt].screen_xy[k]
+                err_track.append(float(np.hypot(*(np.asarray(s.center) - true_xy))))
+                err_det.append(float(np.hypot(*(np.asarray(s.measured_center) - true_xy))))
+        for vid, tr in result.truth.items():
+            if tr.visible[k]:
+                visible_frames += 1
+                if vid in tracked_vessels or _coasting_near(states, tr.screen_xy[k]):
+                    covered_frames += 1
+    confirmed_ids = {s.track_id for states in outputs for s in states if int(s.status) in (1, 2)}
+    false_confirmed = sum(1 for tid in confirmed_ids if votes.get(tid)
+                          and np.mean(np.array(votes[tid]) < 0) > 0.5)
+    return TrackingMetrics(
+        id_switches=switches,
+        tracks_per_vessel={vid: len(tracks_of.get(vid, ())) for vid in sorted(result.truth)},
+        false_confirmed_tracks=false_confirmed,
+        confirmed_rmse_px=float(np.sqrt(np.mean(np.square(err_track)))) if err_track else math.nan,
+        detection_rmse_px=float(np.sqrt(np.mean(np.square(err_det)))) if err_det else math.nan,
+        coverage=covered_frames / visible_frames if visible_frames else math.nan,
+        samples=len(err_track))
+
+
+def _coasting_near(states: Sequence, true_xy: np.ndarray, radius_px: float = 40.0) -> bool:
+    return any(int(s.status) == 2 and float(np.hypot(*(np.asarray(s.center) - true_xy))) < radius_px
+               for s in states)
