@@ -26,6 +26,7 @@ setup(
             "detector = vessel_detect.detector_node:main",
             "bag_build = vessel_detect.bag_build:main",
             "recorder = vessel_detect.recorder_node:main",
+            "replay_detector = vessel_detect.replay_detector_node:main",
         ],
     },
 )
