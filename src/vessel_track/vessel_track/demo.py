@@ -1,0 +1,336 @@
+"""``./vessel demo``: the whole node graph on challenge videos, recorded, scored like the paper, plotted.
+
+For each video: build its bag if needed, start recorder, detector (or the hand labels through
+``replay_detector``), tracker, fuser and GPS publisher as separate processes, wait until they are all connected,
+replay the bag through the camera node as fast as the graph consumes it, wait until every frame has come out of
+the fuser, and stop the graph with SIGINT. Then read the recorded bags back and write ``predictions.csv``
+(the vessel of interest as published on ``/vessel/fix``), ``predictions_offline.csv`` (the same after the paper's
+offline smoothing pass), ``tracks.csv``, ``summary.json`` and plots, and print a short table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset, default_data_dir, parse_videos
+from vessel_calib.errors import VesselError
+from vessel_track.graph import GRAPH_NODES, RECORDER, GraphNode, GraphRunner, default_params_file, repo_root
+
+REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")
+OUTPUT_TOPICS = {
+    "/vessel/detections": "vessel_msgs/msg/Detection2DArray",
+    "/vessel/tracks/screen": "vessel_msgs/msg/VesselTrackArray",
+    "/vessel/tracks": "vessel_msgs/msg/VesselTrackArray",
+    "/vessel/fix": "sensor_msgs/msg/NavSatFix",
+    "/vessel/fixes": "vessel_msgs/msg/VesselTrackArray",
+    "/vessel/gps_truth": "sensor_msgs/msg/NavSatFix",
+    "/camera/fix": "sensor_msgs/msg/NavSatFix",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
+
+
+def log(message: str) -> None:
+    """Progress on stderr, so stdout keeps only the table."""
+    print(f"[demo] {message}", file=sys.stderr, flush=True)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command line of ``./vessel demo``."""
+    parser = argparse.ArgumentParser(prog="./vessel demo", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=None, help="dataset folder laid out like ../shared/aitas "
+                        "(default: $VESSEL_DATA or ../shared/aitas)")
+    parser.add_argument("--videos", default=None, help="videos to run, e.g. 13-17 or 13,14 (default: the "
+                        "validation videos 13-17 where present, else every video of the folder)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default out/demo)")
+    parser.add_argument("--calib", type=Path, default=None, help="calibration parameter file; default: fitted "
+                        "from the dataset's training labels (videos 7-12), else from the shared set's, else "
+                        "config/aitas_camera.yaml")
+    parser.add_argument("--params", type=Path, default=None, help="graph parameter file (default config/aitas.yaml)")
+    parser.add_argument("--detections", choices=("detector", "labels"), default="detector",
+                        help="detector: run the ONNX detector node; labels: feed the hand-labelled boxes")
+    parser.add_argument("--bags", type=Path, default=None, help="where the video bags are (built if missing; "
+                        "default bags/<dataset folder name>)")
+    parser.add_argument("--max-frames", type=int, default=0, help="replay at most this many frames per video "
+                        "(0: all), for a quick check")
+    parser.add_argument("--frame-timeout", type=float, default=60.0, help="seconds to wait for one frame to come "
+                        "out of the graph before giving up on the video")
+    return parser.parse_args(argv)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Inputs: calibration, bags, label detections
+# --------------------------------------------------------------------------------------------------------------
+def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path) -> Path:
+    """The calibration file the graph loads: given, fitted from training labels, or the shipped one."""
+    if calib is not None:
+        if not calib.is_file():
+            raise VesselError(f"calibration file {calib} not found: run ./vessel calibrate or drop --calib")
+        return calib
+    from vessel_calib.calibrate_node import calibrate_dataset_to_yaml
+
+    sources = [dataset]
+    shared = default_data_dir()
+    if shared is not None and shared.resolve() != dataset.path.resolve():
+        sources.append(Dataset(shared))
+    for source in sources:
+        train = [v for v in TRAIN_VIDEOS if any(label.gps_ok for label in source.labels([v]))]
+        if train:
+            target = out / "calibration.yaml"
+            log(f"calibrating from {source.path} training videos {train[0]}-{train[-1]} -> {target}")
+            calibrate_dataset_to_yaml(source, train, target)
+            return target
+    fallback = repo_root() / "config" / "aitas_camera.yaml"
+    log(f"no training labels found: using the shipped calibration {fallback}")
+    return fallback
+
+
+def prepare_bags(dataset: Dataset, videos: list[int], bag_root: Path) -> dict[int, Path]:
+    """Bag folders ``bag_root/video_<N>``, built from the dataset where missing."""
+    from vessel_detect.bag_build import BuildOptions, build_from_dataset
+
+    missing = [v for v in videos if not (bag_root / f"video_{v}" / "metadata.yaml").is_file()]
+    if missing:
+        log(f"building bags for videos {missing} into {bag_root}")
+        build_from_dataset(dataset.path, bag_root, missing, BuildOptions(overwrite=True), report=log)
+    return {v: bag_root / f"video_{v}" for v in videos}
+
+
+def write_label_detections(dataset: Dataset, videos: list[int], path: Path) -> int:
+    """The primary hand-labelled boxes as a detections CSV for ``replay_detector``; rows written."""
+    from vessel_detect.replay_detector_node import CSV_COLUMNS
+
+    labels = dataset.labels(videos, primary_only=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        for label in labels:
+            writer.writerow([f"{label.stamp:.6f}", label.x1, label.y1, label.x2, label.y2, 1.0, "boat"])
+    return len(labels)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Running the graph
+# --------------------------------------------------------------------------------------------------------------
+class GraphWatcher:
+    """An in-process node that sees whether the graph is connected and counts frames leaving the fuser."""
+
+    def __init__(self):
+        import rclpy
+        from rclpy.context import Context
+        from vessel_msgs.msg import VesselTrackArray
+
+        from vessel_calib.node_support import reliable_qos
+
+        self._rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("demo_watcher", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.tracks_received = 0
+        self.node.create_subscription(VesselTrackArray, "/vessel/tracks", self._on_tracks, reliable_qos(100))
+
+    def _on_tracks(self, _message) -> None:
+        self.tracks_received += 1
+
+    def spin(self, seconds: float) -> None:
+        """Process callbacks for a while."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def connected(self, with_recorder: bool = True) -> bool:
+        """Every link from the detector to the recorder is matched (so no frame is lost at the start)."""
+        count = self.node.count_subscribers
+        links = [
+            count("/camera/image_raw/compressed") >= 1,
+            count("/vessel/detections") >= 1 + with_recorder,
+            count("/vessel/tracks/screen") >= 1 + with_recorder,
+            count("/vessel/tracks") >= 2 + with_recorder,
+        ]
+        if with_recorder:
+            links.append(count("/vessel/fix") >= 1)
+        return all(links)
+
+    def close(self) -> None:
+        """Shut the watcher's context down."""
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+@dataclass
+class VideoRun:
+    """What happened while one video went through the graph."""
+
+    video: int
+    frames_in_bag: int
+    frames_out: int
+    seconds: float
+    recording: Path
+    node_statuses: dict[str, int]
+
+
+def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, label_csv: Path | None,
+              log_dir: Path, frames_in_bag: int) -> VideoRun:
+    """One video through the whole graph as separate processes; the outputs recorded to ``recording``."""
+    runner = GraphRunner(params, log_dir=log_dir)
+    watcher = GraphWatcher()
+    started = time.monotonic()
+    try:
+        runner.start(RECORDER, {"output": str(recording), "topics": list(OUTPUT_TOPICS),
+                                "types": list(OUTPUT_TOPICS.values())})
+        nodes = {node.name: node for node in GRAPH_NODES}
+        for name in ("gps_publisher", "fuser", "tracker"):
+            runner.start(nodes[name])
+        if label_csv is not None:
+            runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv)})
+        else:
+            runner.start(nodes["detector"])
+        deadline = time.monotonic() + 60
+        while not watcher.connected():
+            watcher.spin(0.1)
+            failed = runner.failed()
+            if failed:
+                raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
+            if time.monotonic() > deadline:
+                raise VesselError("the graph did not connect within 60 s; see the logs in " + str(log_dir))
+        camera_parameters: dict[str, object] = {"source": str(bag), "rate": 0.0, "loop": False, "exit_at_end": True}
+        if args.max_frames:
+            camera_parameters["max_frames"] = args.max_frames
+        runner.start(nodes["camera"], camera_parameters)
+        expected = min(frames_in_bag, args.max_frames) if args.max_frames else frames_in_bag
+        last_progress = time.monotonic()
+        last_count = -1
+        while watcher.tracks_received < expected:
+            watcher.spin(0.2)
+            if watcher.tracks_received != last_count:
+                last_count = watcher.tracks_received
+                last_progress = time.monotonic()
+                print(f"\r[demo] video {video}: {last_count}/{expected} frames through the graph",
+                      end="", file=sys.stderr, flush=True)
+            failed = runner.failed()
+            if failed:
+                raise VesselError(f"node(s) {failed} failed during video {video}:\n{runner.log_tail(failed[0])}")
+            if time.monotonic() - last_progress > args.frame_timeout:
+                print(file=sys.stderr)
+                log(f"video {video}: no frame came out for {args.frame_timeout:.0f} s; stopping with "
+                    f"{watcher.tracks_received}/{expected}")
+                break
+        print(file=sys.stderr)
+        watcher.spin(1.0)  # let the GPS publisher and the recorder take the last messages
+        frames_out = watcher.tracks_received
+    finally:
+        statuses = runner.stop()
+        watcher.close()
+    return VideoRun(video, frames_in_bag, frames_out, time.monotonic() - started, recording, statuses)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Outputs
+# --------------------------------------------------------------------------------------------------------------
+def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
+    """``predictions.csv`` from /vessel/fix and ``tracks.csv`` from /vessel/tracks of the recorded bags."""
+    import math
+
+    from vessel_detect.bag_io import BagReader, ns_of_stamp
+
+    predictions_path = out / "predictions.csv"
+    tracks_path = out / "tracks.csv"
+    with predictions_path.open("w", newline="") as p_handle, tracks_path.open("w", newline="") as t_handle:
+        predictions = csv.writer(p_handle)
+        predictions.writerow(["video", "t_utc_s", "lat", "lon"])
+        tracks = csv.writer(t_handle)
+        tracks.writerow(["video", "t_utc_s", "track_id", "is_target", "status", "x_px", "y_px", "w_px", "h_px",
+                         "east_m", "north_m", "lat", "lon", "distance_m", "expected_error_m", "confidence"])
+        for run in runs:
+            with BagReader(run.recording) as reader:
+                topics = reader.topics
+                if "/vessel/fix" in topics:
+                    for _, fix in reader.read_topic("/vessel/fix"):
+                        if fix.status.status < 0 or not (math.isfinite(fix.latitude) and math.isfinite(fix.longitude)):
+                            continue
+                        t = ns_of_stamp(fix.header.stamp) / 1e9
+                        predictions.writerow([run.video, f"{t % 86400:.3f}", f"{fix.latitude:.8f}",
+                                              f"{fix.longitude:.8f}"])
+                if "/vessel/tracks" in topics:
+                    for _, array in reader.read_topic("/vessel/tracks"):
+                        t = ns_of_stamp(array.header.stamp) / 1e9
+                        for track in array.tracks:
+                            tracks.writerow([
+                                run.video, f"{t % 86400:.3f}", track.id, int(track.is_target), track.status,
+                                f"{track.bbox.center.position.x:.2f}", f"{track.bbox.center.position.y:.2f}",
+                                f"{track.bbox.size_x:.2f}", f"{track.bbox.size_y:.2f}",
+                                f"{track.position.x:.3f}", f"{track.position.y:.3f}",
+                                f"{track.latitude:.8f}", f"{track.longitude:.8f}",
+                                f"{track.distance_m:.2f}", f"{track.expected_error_m:.2f}", f"{track.confidence:.3f}",
+                            ])
+    return predictions_path, tracks_path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the demo; 0 when it ran to the end, 2 on bad input, 1 when the graph failed."""
+    args = parse_args(argv)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    try:
+        data = args.data or default_data_dir()
+        if data is None:
+            raise VesselError("no dataset: pass --data DIR (a folder laid out like ../shared/aitas) or set "
+                              "VESSEL_DATA")
+        dataset = Dataset(data)
+        available = dataset.videos()
+        videos = parse_videos(args.videos) if args.videos else (
+            [v for v in VALIDATION_VIDEOS if v in available] or available)
+        absent = [v for v in videos if v not in available]
+        if absent:
+            raise VesselError(f"video(s) {absent} are not in {data} (it has {available})")
+        out = args.out or repo_root() / "out" / "demo"
+        out.mkdir(parents=True, exist_ok=True)
+        calibration = prepare_calibration(dataset, args.calib, out)
+        params = [args.params or default_params_file(), calibration]
+        bag_root = args.bags or repo_root() / "bags" / Path(data).resolve().name
+        bags = prepare_bags(dataset, videos, bag_root)
+        label_csv = None
+        if args.detections == "labels":
+            label_csv = out / "label_detections.csv"
+            count = write_label_detections(dataset, videos, label_csv)
+            if count == 0:
+                raise VesselError(f"--detections labels: {data} has no hand labels for videos {videos}")
+        frames_per_video = {v: sum(1 for f in dataset.frames([v])) for v in videos}
+        runs = []
+        for video in videos:
+            recording = out / "recording" / f"video_{video}"
+            if recording.exists():
+                import shutil
+
+                shutil.rmtree(recording)
+            recording.parent.mkdir(parents=True, exist_ok=True)
+            log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
+            run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
+                            frames_per_video[video])
+            log(f"video {video}: {run.frames_out}/{run.frames_in_bag} frames in {run.seconds:.1f} s "
+                f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
+            runs.append(run)
+        predictions, tracks = export_recordings(runs, out)
+        from vessel_track.demo_report import write_report
+
+        summary = write_report(dataset, videos, out, predictions, tracks, runs)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        log(f"outputs in {out}: predictions.csv, predictions_offline.csv, tracks.csv, summary.json, plots, "
+            "recording/")
+        return 0
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
