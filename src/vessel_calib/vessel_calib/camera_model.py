@@ -63,6 +63,7 @@ class CameraModel:
 
     Raises:
         CalibrationError: non-finite or singular H, absurd K1, bad image size or centre, invalid position.
+
     """
 
     __slots__ = (
@@ -106,6 +107,8 @@ class CameraModel:
         if not _is_number(K1) or not math.isfinite(float(K1)):
             raise CalibrationError(f"K1 must be a finite number, got {K1!r}")
         K1 = float(K1)
+        if abs(K1) < 1e-30:
+            K1 = 0.0  # physically no distortion; avoids overflow in the fold radius
         r_corner2 = max((px - cx) ** 2 + (py - cy) ** 2 for px in (0, width) for py in (0, height))
         if abs(K1) * r_corner2 > MAX_K1_CORNER_EFFECT:
             raise CalibrationError(
@@ -135,7 +138,7 @@ class CameraModel:
         Hinv = np.linalg.inv(H_arr)
         bx, by = self._undistort_ok(np.array(cx), np.array(height - 1.0))[:2]
         if not np.isfinite(bx):
-            bx, by = cx, cy
+            bx, by = cx, height - 1.0
         w_bottom = Hinv[2] @ np.array([float(bx), float(by), 1.0])
         if abs(w_bottom) <= _HORIZON_EPS * np.abs(Hinv[2]).sum() * max(width, height):
             raise CalibrationError(
@@ -155,17 +158,17 @@ class CameraModel:
 
     # ----------------------------------------------------------------- properties
     @property
-    def H(self) -> np.ndarray:
+    def H(self) -> np.ndarray:  # noqa: N802 - the paper's symbol
         """The 3x3 homography (read-only), sign-normalised so z_p < 0 in front."""
         return self._H
 
     @property
-    def H_inv(self) -> np.ndarray:
+    def H_inv(self) -> np.ndarray:  # noqa: N802
         """Inverse of H (read-only): ideal pixels -> homogeneous world."""
         return self._Hinv
 
     @property
-    def K1(self) -> float:
+    def K1(self) -> float:  # noqa: N802
         """Radial distortion coefficient, 1/px^2."""
         return self._K1
 
@@ -478,7 +481,8 @@ class CameraModel:
         Derived keys (``heading_deg``, ``horizon_*``) are informational and recomputed from H.
         """
         if not isinstance(params, Mapping):
-            raise CalibrationError(f"{where}: expected a mapping of calibration parameters, got {type(params).__name__}")
+            raise CalibrationError(
+                f"{where}: expected a mapping of calibration parameters, got {type(params).__name__}")
         missing = [k for k in PARAM_KEYS_REQUIRED if k not in params]
         if missing:
             raise CalibrationError(

@@ -281,7 +281,7 @@ class Dataset:
         return sorted({f.video for f in self.frames()})
 
     def video_splits(self) -> dict[int, str]:
-        """video -> split (train/val/...) from videos.csv; empty if the file is absent."""
+        """Video -> split (train/val/...) from videos.csv; empty if the file is absent."""
         path = self.path / "videos.csv"
         if not path.is_file():
             return {}

@@ -30,8 +30,7 @@ def _wrap_deg(delta_deg):
 
 def gps_to_local(lat, lon, lat0, lon0):
     """Latitude/longitude (degrees) -> (x_east_m, y_north_m) relative to (lat0, lon0)."""
-    lat = np.asarray(lat, dtype=float)
-    lon = np.asarray(lon, dtype=float)
+    lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=float), np.asarray(lon, dtype=float))
     x = EARTH_RADIUS_M * np.radians(_wrap_deg(lon - lon0)) * np.cos(np.radians(lat0))
     y = EARTH_RADIUS_M * np.radians(lat - lat0)
     return _out(x), _out(y)
@@ -39,8 +38,7 @@ def gps_to_local(lat, lon, lat0, lon0):
 
 def local_to_gps(x, y, lat0, lon0):
     """(x_east_m, y_north_m) relative to (lat0, lon0) -> latitude/longitude in degrees (exact inverse)."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
     lat = lat0 + np.degrees(y / EARTH_RADIUS_M)
     lon = lon0 + np.degrees(x / (EARTH_RADIUS_M * np.cos(np.radians(lat0))))
     lon = _wrap_deg(lon)

@@ -75,6 +75,7 @@ class GpsTrack:
 
     Fixes sharing a timestamp are averaged into one. Non-finite or out-of-range fixes raise DataError here
     (loaders drop them before construction and count them).
+
     """
 
     def __init__(self, stamps, lats, lons, skipped_rows: int = 0):

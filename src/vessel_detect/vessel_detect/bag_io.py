@@ -133,6 +133,12 @@ def _require_type(store: Typestore, msgtype: str) -> None:
         raise DataError(f"unknown message type {msgtype!r}{hint}")
 
 
+def validate_position(lat: float, lon: float, what: str) -> None:
+    """`DataError` unless (lat, lon) is a finite WGS-84 position."""
+    if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
+        raise DataError(f"{what} ({lat!r}, {lon!r}) is not a WGS-84 latitude/longitude in degrees")
+
+
 def normalise_msgtype(msgtype: str) -> str:
     """`sensor_msgs/NavSatFix` or `sensor_msgs/msg/NavSatFix` -> `sensor_msgs/msg/NavSatFix`."""
     parts = msgtype.strip().split("/")
@@ -364,6 +370,12 @@ class BagWriter:
             raise DataError(f"log time {log_time_ns} ns on {topic} is negative")
         self._writer.write(connection, int(log_time_ns), cdr)
         self.counts[topic] += 1
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Store a key/value string in `metadata.yaml` (`custom_data`: provenance, e.g. the source video)."""
+        if self._writer is None:
+            raise DataError(f"bag {self.path} is not open")
+        self._writer.set_custom_data(key, str(value))
 
     @property
     def message_count(self) -> int:
@@ -662,3 +674,30 @@ def iter_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Iterator
                 yield BagMessage(channel.topic, name, int(message.log_time), bytes(message.data))
     except (McapError, *_DAMAGE_ERRORS) as exc:
         raise DataError(f"bag file {file} is damaged ({exc}): {BUILD_HINT}") from exc
+
+
+def bag_info(path: str | Path) -> str:
+    """A `ros2 bag info`-like summary of a bag: files, size, duration, time span, topics with types and counts."""
+    from datetime import UTC, datetime
+
+    path = Path(path)
+    with BagReader(path) as reader:
+        files = [path] if path.is_file() else sorted(p for p in path.iterdir() if p.is_file())
+        size = sum(p.stat().st_size for p in files)
+        start, end = reader.start_ns, reader.end_ns
+
+        def utc(ns: int) -> str:
+            return datetime.fromtimestamp(ns / 1e9, tz=UTC).isoformat(timespec="milliseconds")
+
+        lines = [
+            f"bag:       {path}",
+            f"files:     {', '.join(p.name for p in files)}",
+            f"size:      {size / 1e6:.1f} MB",
+            f"duration:  {(end - start) / 1e9:.3f} s",
+            f"start:     {utc(start)} ({start / 1e9:.3f})",
+            f"end:       {utc(end)} ({end / 1e9:.3f})",
+            f"messages:  {reader.message_count()}",
+            "topics:",
+            reader.describe(),
+        ]
+    return "\n".join(lines)

@@ -61,7 +61,7 @@ class TrackerConfig:
     """
 
     # --- Kalman filter ---
-    measurement_std_px: float = 20.0
+    measurement_std_px: float = 10.0
     """Standard deviation of a detection's box centre, px (the paper: R = 10² px² at half resolution)."""
     measurement_std_size_frac: float = 0.0
     """Extra centre noise proportional to the box size (fraction of w for x, of h for y): large, close boxes
@@ -69,13 +69,19 @@ class TrackerConfig:
     process_noise_model: str = "continuous_wna"
     """``continuous_wna`` (Q = q[[Δ³/3, Δ²/2], [Δ²/2, Δ]] per axis, consistent for any frame rate),
     ``discrete_wna`` (Q = q[[Δ⁴/4, Δ³/2], [Δ³/2, Δ²]]) or ``paper`` (Q = diag(0, qΔ², 0, qΔ²))."""
-    process_noise: float = 4.0
-    """q of the process noise model: px²/s³ (spectral density of the acceleration) for ``continuous_wna``,
-    px²/s⁴ (acceleration variance) for ``discrete_wna`` and ``paper`` (the paper: 1 at half resolution, 4 at
-    full resolution)."""
-    init_velocity_std_px_s: float = 30.0
-    """Standard deviation of the unknown velocity of a new track, px/s (about the fastest screen motion of a
-    vessel in the challenge data: 20-50 px/s)."""
+    process_noise: float = 1.0
+    """q of the process noise model for x: px²/s³ (spectral density of the acceleration) for
+    ``continuous_wna``, px²/s⁴ (acceleration variance) for ``discrete_wna`` and ``paper`` (the paper: 1 at
+    half resolution, i.e. 4 at full resolution)."""
+    process_noise_y: float = 0.25
+    """q for y, same units as ``process_noise``. Near the horizon a vessel's screen motion is mostly
+    horizontal, so a smaller value here keeps coasting tracks from drifting onto clutter below or above."""
+    init_velocity_std_x_px_s: float = 30.0
+    """Standard deviation of the unknown horizontal velocity of a new track, px/s (vessels in the challenge
+    data move 5-50 px/s across the screen)."""
+    init_velocity_std_y_px_s: float = 10.0
+    """Standard deviation of the unknown vertical velocity of a new track, px/s (near the horizon vessels move
+    little in y: a few px/s, up to ~20 px/s when passing close to the camera)."""
 
     # --- association ---
     association: str = "global"
@@ -84,31 +90,38 @@ class TrackerConfig:
     distance_metric: str = "mahalanobis"
     """Association cost: ``mahalanobis`` (innovation d'S⁻¹d + ln det S, uses the predicted covariance) or
     ``euclidean`` ((distance / measurement_std_px)²)."""
-    gate_px: float = 160.0
-    """Smallest gate radius around a predicted centre, px (the paper: 80 px at half resolution)."""
+    gate_px: float = 40.0
+    """A detection within this distance of a predicted centre is always admissible, px (the paper: 80 px at
+    half resolution)."""
     gate_sigmas: float = 4.0
-    """The gate radius grows to this many standard deviations of the predicted innovation (largest axis) when
-    that is larger than ``gate_px``: after a long coast or at the start of a track."""
-    max_gate_px: float = 480.0
-    """Largest gate radius, px: bounds how far a coasting track can reach."""
+    """Beyond ``gate_px``, a detection is admissible while its Mahalanobis distance to the prediction (with
+    the predicted innovation covariance) is at most this: the gate grows along the directions where the
+    prediction is uncertain, after a long coast or at the start of a track."""
+    max_gate_px: float = 240.0
+    """No detection farther than this from a predicted centre is admissible, px: bounds how far a coasting
+    track can reach."""
     size_weight: float = 1.0
     """Weight of the box-size similarity term in the association cost (0 disables it)."""
     size_log_std: float = 0.3
     """Expected change of ln(box width) and ln(box height) between associated detections (0.3 ≈ 35 %)."""
-    max_size_ratio: float = 4.0
+    max_size_ratio: float = 3.0
     """A detection whose width or height differs from the track's box by more than this factor is not
     associated (0 disables the size gate)."""
 
     # --- life cycle ---
     min_hits: int = 3
     """Detections needed before a track is CONFIRMED."""
-    max_coast_s: float = 12.0
+    max_coast_s: float = 20.0
     """A track not updated for longer than this is LOST (reported once, then removed). The paper ended a track
     after 10 frames; 12 s covers two to three missed challenge frames (~4 s apart) and, live, a vessel hidden
     behind another for several seconds, while a stale prediction is not kept for long."""
     tentative_max_coast_s: float = 8.5
     """A TENTATIVE track not updated for longer than this is dropped (reported LOST): one missed challenge
-    frame is tolerated; clutter does not accumulate."""
+    frame (~4 s apart) is tolerated."""
+    tentative_max_misses: int = 2
+    """A TENTATIVE track is also dropped once it has missed more than this many consecutive frames. This counts
+    chances to be detected, not time: on a live camera a false detection that does not repeat within a few
+    frames is dropped in milliseconds instead of collecting stray clutter for seconds."""
     max_tracks: int = 100
     """At most this many live tracks; detections that would create more are dropped and counted."""
     duplicate_iou: float = 0.5
@@ -132,7 +145,8 @@ class TrackerConfig:
         """Validate every field so a bad parameter file fails at start-up with the name of the field."""
         positive = ("measurement_std_px", "gate_px", "gate_sigmas", "max_gate_px", "max_coast_s",
                     "tentative_max_coast_s", "size_log_std", "min_box_size_px")
-        non_negative = ("measurement_std_size_frac", "process_noise", "init_velocity_std_px_s", "size_weight",
+        non_negative = ("measurement_std_size_frac", "process_noise", "process_noise_y", "init_velocity_std_x_px_s",
+                        "init_velocity_std_y_px_s", "size_weight",
                         "max_size_ratio", "duplicate_iou", "min_score", "backwards_reset_s")
         for name in positive:
             value = getattr(self, name)
@@ -147,10 +161,11 @@ class TrackerConfig:
             if getattr(self, name) not in allowed:
                 raise DataError(f"tracker config: {name} must be one of {', '.join(allowed)}, "
                                 f"got {getattr(self, name)!r}")
-        for name in ("min_hits", "max_tracks", "history_length"):
+        for name, least in (("min_hits", 1), ("max_tracks", 1), ("history_length", 1),
+                            ("tentative_max_misses", 0)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise DataError(f"tracker config: {name} must be an integer >= 1, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise DataError(f"tracker config: {name} must be an integer >= {least}, got {value!r}")
         if self.max_gate_px < self.gate_px:
             raise DataError(f"tracker config: max_gate_px ({self.max_gate_px}) must be >= gate_px "
                             f"({self.gate_px})")
@@ -267,6 +282,7 @@ class _Track:
     size: np.ndarray
     confidence: float
     hits: int = 1
+    misses: int = 0
     ever_confirmed: bool = False
     history: deque = field(default_factory=deque)
 
@@ -293,20 +309,23 @@ def transition_matrix(dt: float) -> np.ndarray:
     return np.array([[1.0, dt, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, dt], [0.0, 0.0, 0.0, 1.0]])
 
 
-def process_noise_matrix(dt: float, q: float, model: str) -> np.ndarray:
-    """Q of the state (x, vx, y, vy) for a step of ``dt`` seconds under ``model`` (see ``TrackerConfig``)."""
+def process_noise_matrix(dt: float, q: float, model: str, q_y: float | None = None) -> np.ndarray:
+    """Q of the state (x, vx, y, vy) for a step of ``dt`` seconds under ``model`` (see ``TrackerConfig``).
+
+    ``q`` applies to x and, unless ``q_y`` is given, to y.
+    """
     if model == "continuous_wna":
-        block = q * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+        unit = np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
     elif model == "discrete_wna":
-        block = q * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+        unit = np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
     elif model == "paper":
-        block = np.array([[0.0, 0.0], [0.0, q * dt**2]])
+        unit = np.array([[0.0, 0.0], [0.0, dt**2]])
     else:
         raise DataError(f"unknown process noise model {model!r}; "
                         f"use one of {', '.join(PROCESS_NOISE_MODELS)}")
     Q = np.zeros((4, 4))
-    Q[np.ix_((0, 1), (0, 1))] = block
-    Q[np.ix_((2, 3), (2, 3))] = block
+    Q[np.ix_((0, 1), (0, 1))] = q * unit
+    Q[np.ix_((2, 3), (2, 3))] = (q if q_y is None else q_y) * unit
     return Q
 
 
@@ -426,7 +445,8 @@ class MultiTargetTracker:
         alive: list[_Track] = []
         for track in self._tracks:
             limit = cfg.max_coast_s if track.ever_confirmed else cfg.tentative_max_coast_s
-            if stamp - track.last_seen > limit:
+            if stamp - track.last_seen > limit or (
+                    not track.ever_confirmed and track.misses > cfg.tentative_max_misses):
                 reported.append(self._end(track, stamp))
             else:
                 alive.append(track)
@@ -461,6 +481,8 @@ class MultiTargetTracker:
         new_tracks = self._spawn(stamp, boxes, centers, sizes, confs, free_dets, list(matches.values()))
 
         for ti, track in enumerate(self._tracks):
+            if ti not in measured:
+                track.misses += 1
             m = measured.get(ti)
             reported.append(self._state(track, stamp, self._status(track, ti in measured),
                                         None if m is None else m[0], None if m is None else m[1]))
@@ -519,8 +541,7 @@ class MultiTargetTracker:
         kf.x = np.array([[center[0]], [0.0], [center[1]], [0.0]])
         kf.H = _H.copy()
         R = self._measurement_cov(size)
-        v = cfg.init_velocity_std_px_s**2
-        kf.P = np.diag([R[0, 0], v, R[1, 1], v])
+        kf.P = np.diag([R[0, 0], cfg.init_velocity_std_x_px_s**2, R[1, 1], cfg.init_velocity_std_y_px_s**2])
         kf.R = R
         return kf
 
@@ -534,8 +555,8 @@ class MultiTargetTracker:
         dt = stamp - track.stamp
         if dt > 0:
             cfg = self.config
-            track.kf.predict(F=transition_matrix(dt), Q=process_noise_matrix(dt, cfg.process_noise,
-                                                                           cfg.process_noise_model))
+            track.kf.predict(F=transition_matrix(dt), Q=process_noise_matrix(
+                dt, cfg.process_noise, cfg.process_noise_model, cfg.process_noise_y))
         track.stamp = stamp
 
     def _correct(self, track: _Track, stamp: float, center: np.ndarray, size: np.ndarray,
@@ -545,6 +566,7 @@ class MultiTargetTracker:
         track.size = size.copy()
         track.confidence = conf
         track.hits += 1
+        track.misses = 0
         if not track.ever_confirmed and track.hits >= self.config.min_hits:
             track.ever_confirmed = True
             self.counters.tracks_confirmed += 1
@@ -571,15 +593,16 @@ class MultiTargetTracker:
                 S = P + self._measurement_cov(sizes[j])
                 d = centers[j] - track.center
                 dist = float(np.hypot(d[0], d[1]))
-                radius = min(cfg.max_gate_px, max(cfg.gate_px, cfg.gate_sigmas * math.sqrt(
-                    float(np.linalg.eigvalsh(S)[-1]))))
-                if dist > radius:
+                if dist > cfg.max_gate_px:
+                    continue
+                mahalanobis2 = float(d @ np.linalg.solve(S, d))
+                if dist > cfg.gate_px and mahalanobis2 > cfg.gate_sigmas**2:
                     continue
                 ratio = np.log(sizes[j] / track.size)
                 if cfg.max_size_ratio > 0 and np.any(np.abs(ratio) > math.log(cfg.max_size_ratio)):
                     continue
                 if cfg.distance_metric == "mahalanobis":
-                    position_term = float(d @ np.linalg.solve(S, d)) + math.log(float(np.linalg.det(S)))
+                    position_term = mahalanobis2 + math.log(float(np.linalg.det(S)))
                 else:
                     position_term = (dist / cfg.measurement_std_px) ** 2
                 size_term = float(np.sum((ratio / cfg.size_log_std) ** 2))
