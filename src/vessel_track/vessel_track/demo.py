@@ -74,7 +74,7 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path) -> Path
         if not calib.is_file():
             raise VesselError(f"calibration file {calib} not found: run ./vessel calibrate or drop --calib")
         return calib
-    from vessel_calib.calibrate_node import calibrate_dataset_to_yaml
+    from vessel_calib import calibrate_node
 
     sources = [dataset]
     shared = default_data_dir()
@@ -84,8 +84,11 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path) -> Path
         train = [v for v in TRAIN_VIDEOS if any(label.gps_ok for label in source.labels([v]))]
         if train:
             target = out / "calibration.yaml"
-            log(f"calibrating from {source.path} training videos {train[0]}-{train[-1]} -> {target}")
-            calibrate_dataset_to_yaml(source, train, target)
+            videos = ",".join(str(v) for v in train)
+            log(f"calibrating from {source.path} training videos {videos} -> {target}")
+            status = calibrate_node.main(["--data", str(source.path), "--videos", videos, "--out", str(target)])
+            if status != 0:
+                raise VesselError(f"calibration from {source.path} failed (status {status}); pass --calib FILE")
             return target
     fallback = repo_root() / "config" / "aitas_camera.yaml"
     log(f"no training labels found: using the shipped calibration {fallback}")
@@ -126,9 +129,9 @@ class GraphWatcher:
     def __init__(self):
         import rclpy
         from rclpy.context import Context
-        from vessel_msgs.msg import VesselTrackArray
 
         from vessel_calib.node_support import reliable_qos
+        from vessel_msgs.msg import VesselTrackArray
 
         self._rclpy = rclpy
         self.context = Context()
@@ -186,8 +189,8 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
     watcher = GraphWatcher()
     started = time.monotonic()
     try:
-        runner.start(RECORDER, {"output": str(recording), "topics": list(OUTPUT_TOPICS),
-                                "types": list(OUTPUT_TOPICS.values())})
+        runner.start(RECORDER, {"output": str(recording),
+                                "topics": [f"{topic}:{msgtype}" for topic, msgtype in OUTPUT_TOPICS.items()]})
         nodes = {node.name: node for node in GRAPH_NODES}
         for name in ("gps_publisher", "fuser", "tracker"):
             runner.start(nodes[name])
@@ -322,7 +325,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         predictions, tracks = export_recordings(runs, out)
         from vessel_track.demo_report import write_report
 
-        summary = write_report(dataset, videos, out, predictions, tracks, runs)
+        summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration)
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         log(f"outputs in {out}: predictions.csv, predictions_offline.csv, tracks.csv, summary.json, plots, "
             "recording/")

@@ -1,0 +1,38 @@
+"""Scoring, plots and the closing table of ``./vessel demo`` (ROS-free: it reads the exported CSV files)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from vessel_track.evaluation import evaluate, format_table
+
+PAPER_SPLITS = {"13-16": [13, 14, 15, 16], "13-17": [13, 14, 15, 16, 17]}
+
+
+def write_report(dataset, videos: list[int], out: Path, predictions: Path, tracks: Path, runs, calibration: Path,
+                 offline_predictions: Path | None = None) -> dict:
+    """Score the demo's predictions like the paper (plots into ``out``), print the table, return the summary."""
+    has_truth = (dataset.path / "target_gps_fixes.csv").is_file()
+    summary: dict = {
+        "videos": videos,
+        "calibration": str(calibration),
+        "runs": [
+            {"video": r.video, "frames_in_bag": r.frames_in_bag, "frames_out": r.frames_out,
+             "seconds": round(r.seconds, 2), "node_exit_statuses": r.node_statuses}
+            for r in runs
+        ],
+    }
+    if not has_truth:
+        print(f"{dataset.path} has no target_gps_fixes.csv: predictions written, nothing to score against",
+              file=sys.stderr)
+        return summary
+    summary["online"] = evaluate(predictions, dataset.path, videos, out=out / "online", calib=calibration)
+    print("Vessel of interest as published on /vessel/fix (online):")
+    print(format_table(summary["online"]))
+    if offline_predictions is not None and offline_predictions.is_file():
+        summary["offline"] = evaluate(offline_predictions, dataset.path, videos, out=out / "offline",
+                                      calib=calibration)
+        print("\nAfter the offline smoothing pass over the recorded tracks:")
+        print(format_table(summary["offline"]))
+    return summary
