@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -153,19 +154,22 @@ class NodeHealth:
         self._messages: dict[str, str] = {}
         self._status_level = DiagnosticStatus.OK
         self._status_message = "running"
+        self._lock = threading.Lock()
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish)
 
     @property
     def counts(self) -> dict[str, int]:
         """A copy of the problem counters by kind."""
-        return dict(self._counts)
+        with self._lock:
+            return dict(self._counts)
 
     def problem(self, kind: str, message: str) -> None:
         """Record one problem of a kind: logged the first time, counted always."""
-        count = self._counts.get(kind, 0) + 1
-        self._counts[kind] = count
-        self._messages[kind] = message
+        with self._lock:
+            count = self._counts.get(kind, 0) + 1
+            self._counts[kind] = count
+            self._messages[kind] = message
         if count == 1:
             self._node.get_logger().warning(f"{message} (counted as '{kind}' on /diagnostics; logged once)")
         else:
@@ -173,34 +177,40 @@ class NodeHealth:
 
     def count(self, kind: str, amount: int = 1) -> None:
         """Count an event that needs no log line (e.g. frames processed)."""
-        self._counts[kind] = self._counts.get(kind, 0) + amount
+        with self._lock:
+            self._counts[kind] = self._counts.get(kind, 0) + amount
 
     def set_value(self, key: str, value: Any) -> None:
         """Report a figure (latency, frames sent, progress) in the next diagnostics message."""
         if isinstance(value, float):
             value = f"{value:.6g}" if math.isfinite(value) else str(value)
-        self._values[key] = str(value)
+        with self._lock:
+            self._values[key] = str(value)
 
     def set_status(self, level: bytes, message: str) -> None:
         """Set the overall level (``DiagnosticStatus.OK/WARN/ERROR/STALE``) and its message."""
-        self._status_level = level
-        self._status_message = message
+        with self._lock:
+            self._status_level = level
+            self._status_message = message
 
     def publish(self) -> None:
         """Publish the current status, figures and problem counts."""
         status = DiagnosticStatus()
         status.name = f"{self._node.get_name()}"
         status.hardware_id = self._hardware_id
-        level = self._status_level
-        message = self._status_message
-        if self._messages and level == DiagnosticStatus.OK:
+        with self._lock:
+            level = self._status_level
+            message = self._status_message
+            counts = sorted(self._counts.items())
+            values = sorted(self._values.items())
+            problem_kinds = set(self._messages)
+        if problem_kinds and level == DiagnosticStatus.OK:
             level = DiagnosticStatus.WARN
-            message = f"{message}; problems: " + ", ".join(f"{k}={v}" for k, v in sorted(self._counts.items())
-                                                          if k in self._messages)
+            message = f"{message}; problems: " + ", ".join(f"{k}={v}" for k, v in counts if k in problem_kinds)
         status.level = level
         status.message = message
-        status.values = [KeyValue(key=k, value=v) for k, v in sorted(self._values.items())]
-        status.values += [KeyValue(key=f"count.{k}", value=str(v)) for k, v in sorted(self._counts.items())]
+        status.values = [KeyValue(key=k, value=v) for k, v in values]
+        status.values += [KeyValue(key=f"count.{k}", value=str(v)) for k, v in counts]
         array = DiagnosticArray()
         array.header.stamp = self._node.get_clock().now().to_msg()
         array.status = [status]

@@ -57,7 +57,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--detections", choices=("detector", "labels"), default="detector",
                         help="detector: run the ONNX detector node; labels: feed the hand-labelled boxes")
     parser.add_argument("--bags", type=Path, default=None, help="where the video bags are (built if missing; "
-                        "default bags/<dataset folder name>)")
+                        "default bags/ for the shared set, bags/<dataset folder name> for others)")
     parser.add_argument("--max-frames", type=int, default=0, help="replay at most this many frames per video "
                         "(0: all), for a quick check")
     parser.add_argument("--frame-timeout", type=float, default=60.0, help="seconds to wait for one frame to come "
@@ -299,7 +299,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         out.mkdir(parents=True, exist_ok=True)
         calibration = prepare_calibration(dataset, args.calib, out)
         params = [args.params or default_params_file(), calibration]
-        bag_root = args.bags or repo_root() / "bags" / Path(data).resolve().name
+        shared = default_data_dir()
+        is_shared = shared is not None and Path(data).resolve() == shared.resolve()
+        bag_root = args.bags or (repo_root() / "bags" if is_shared else repo_root() / "bags" / Path(data).resolve().name)
         bags = prepare_bags(dataset, videos, bag_root)
         label_csv = None
         if args.detections == "labels":
