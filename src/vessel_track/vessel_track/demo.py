@@ -301,7 +301,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         params = [args.params or default_params_file(), calibration]
         shared = default_data_dir()
         is_shared = shared is not None and Path(data).resolve() == shared.resolve()
-        bag_root = args.bags or (repo_root() / "bags" if is_shared else repo_root() / "bags" / Path(data).resolve().name)
+        bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
         bags = prepare_bags(dataset, videos, bag_root)
         label_csv = None
         if args.detections == "labels":
