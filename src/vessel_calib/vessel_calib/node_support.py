@@ -228,7 +228,12 @@ def run_node(
     Returns the process exit status: 0 after SIGINT or a node that finished its work, 2 when the node could
     not start because of a ``VesselError`` (printed as one ``error:`` line naming the problem and the fix).
     """
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RuntimeError as error:  # rclpy's RCLError: malformed --ros-args
+        print(f"error: cannot start: {error}. Check the --ros-args part of the command line "
+              "(e.g. -p name:=value, --params-file FILE).", file=sys.stderr)
+        return 2
     node = None
     status = 0
     try:

@@ -12,11 +12,14 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import yaml
 
 from vessel_calib.errors import VesselError
 
@@ -103,14 +106,21 @@ class GraphRunner:
         self.env = dict(env if env is not None else os.environ)
         self.echo = echo
         self.running: dict[str, RunningNode] = {}
+        self._temp_dir: Path | None = None
 
     def start(self, node: GraphNode, parameters: dict[str, object] | None = None) -> RunningNode:
-        """Start one node with the parameter files plus ``-p name:=value`` overrides."""
+        """Start one node with the parameter files plus per-run overrides.
+
+        Overrides go into one more parameter file under the node's own name: a ``-p name:=value`` on the
+        command line is a ``/**`` override, which a file's node-specific value would beat.
+        """
         args = [str(executable_path(node)), "--ros-args", "-r", f"__node:={node.name}"]
         for path in self.params_files:
             args += ["--params-file", str(path)]
-        for key, value in (parameters or {}).items():
-            args += ["-p", f"{key}:={_ros_value(value)}"]
+        if parameters:
+            overrides = self._overrides_dir() / f"{node.name}.overrides.yaml"
+            overrides.write_text(yaml.safe_dump({node.name: {"ros__parameters": dict(parameters)}}))
+            args += ["--params-file", str(overrides)]
         log_file = None
         log_path = None
         if self.log_dir is not None:
@@ -123,6 +133,14 @@ class GraphRunner:
         running = RunningNode(node, process, log_path, log_file)
         self.running[node.name] = running
         return running
+
+    def _overrides_dir(self) -> Path:
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            return self.log_dir
+        if self._temp_dir is None:
+            self._temp_dir = Path(tempfile.mkdtemp(prefix="vessel_graph_"))
+        return self._temp_dir
 
     def failed(self) -> list[str]:
         """Names of nodes that exited with a non-zero status."""
@@ -164,15 +182,6 @@ class GraphRunner:
         if running.log_file is not None:
             running.log_file.flush()
         return "\n".join(running.log_path.read_text(errors="replace").splitlines()[-lines:])
-
-
-def _ros_value(value: object) -> str:
-    """A ``-p name:=value`` literal (YAML) for a Python value."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (list, tuple)):
-        return "[" + ",".join(_ros_value(v) for v in value) + "]"
-    return str(value)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
