@@ -77,6 +77,8 @@ def _node_arguments(package: str, executable: str, tmp_path: Path) -> list[str]:
             image = np.full((72, 128, 3), 40 * index, np.uint8)
             cv2.imwrite(str(folder / f"{index:05d}.jpg"), image)
         return ["--ros-args", "-p", f"source:={folder}", "-p", "rate:=1.0", "-p", "loop:=true"]
+    if (package, executable) == ("vessel_detect", "recorder"):
+        return ["--ros-args", "-p", f"output:={tmp_path / 'recording'}"]
     if (package, executable) == ("vessel_calib", "calibrate"):
         return ["--ros-args", "-p", f"out:={tmp_path / 'camera.yaml'}"]
     return ["--ros-args"]

@@ -1,0 +1,225 @@
+"""bag_io: rosbag2 MCAP folders written and read back with rosbags and with the mcap library; damaged input."""
+
+import math
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from vessel_calib.errors import DataError
+from vessel_detect import bag_io, synthetic
+
+
+def test_sec_to_ns_keeps_millisecond_stamps_exact():
+    assert bag_io.sec_to_ns(1601495752.884) == 1601495752_884000000
+    assert bag_io.sec_to_ns(0.0) == 0
+    assert bag_io.sec_to_ns(1.9999996) == 2_000_000_000
+    with pytest.raises(DataError, match="finite"):
+        bag_io.sec_to_ns(math.nan)
+
+
+def test_round_trip_with_rosbags_and_mcap(tmp_path):
+    path = tmp_path / "bag"
+    stamps = synthetic.write_bag(path, frames=8, frame_step_s=0.25)
+    meta = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["storage_identifier"] == "mcap"
+    assert meta["message_count"] == 1 + 8 + 8
+    assert meta["starting_time"]["nanoseconds_since_epoch"] == stamps[0]
+    assert meta["duration"]["nanoseconds"] == stamps[-1] - stamps[0]
+    qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"][0] for t in
+           meta["topics_with_message_count"]}
+    assert qos[bag_io.DEFAULT_CAMERA_FIX_TOPIC]["durability"] == "transient_local"
+    assert qos[bag_io.DEFAULT_IMAGE_TOPIC]["reliability"] == "best_effort"
+
+    with bag_io.BagReader(path) as reader:
+        images = list(reader.images())
+        assert [bag_io.sec_to_ns(t) for t, _ in images] == stamps
+        assert [data for _, data in images] == [synthetic.frame_jpeg(k) for k in range(8)]
+        # log time == header stamp for every message
+        for message in reader.messages():
+            assert message.log_time_ns == bag_io.ns_of_stamp(reader.decode(message).header.stamp)
+        truth = reader.fixes(bag_io.DEFAULT_GPS_TRUTH_TOPIC)
+        expected = np.array([synthetic.vessel_position(k * 0.25) for k in range(8)])
+        np.testing.assert_array_equal(truth.lats, expected[:, 0])
+        np.testing.assert_array_equal(truth.lons, expected[:, 1])
+        assert np.all(truth.covariance_type == bag_io.COVARIANCE_TYPE_UNKNOWN)
+        assert np.all(np.isnan(truth.alts))
+
+    # The mcap library, independently: same bytes, chunks compressed.
+    from mcap.reader import make_reader
+
+    with bag_io.mcap_file_of(path).open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        assert reader.get_header().profile == "ros2"
+    store = bag_io.typestore()
+    via_mcap = [m for m in bag_io.iter_mcap(path) if m.topic == bag_io.DEFAULT_IMAGE_TOPIC]
+    assert [bytes(store.deserialize_cdr(m.cdr, bag_io.COMPRESSED_IMAGE).data) for m in via_mcap] == [
+        synthetic.frame_jpeg(k) for k in range(8)
+    ]
+    assert [m.log_time_ns for m in via_mcap] == stamps
+
+
+def test_vessel_msgs_round_trip(tmp_path):
+    store = bag_io.typestore()
+    assert "vessel_msgs/msg/VesselTrackArray" in store.fielddefs
+    Track = store.types["vessel_msgs/msg/VesselTrack"]
+    Array = store.types[bag_io.VESSEL_TRACK_ARRAY]
+    types = store.types
+    stamp = bag_io.sec_to_ns(synthetic.START_UTC)
+    track = Track(
+        header=bag_io.header(stamp, "camera"),
+        id="7",
+        is_target=True,
+        score=1.5,
+        confidence=0.8,
+        status=Track.STATUS_CONFIRMED,
+        detection_count=12,
+        first_seen=bag_io.header(stamp, "").stamp,
+        last_seen=bag_io.header(stamp, "").stamp,
+        bbox=types["vessel_msgs/msg/BoundingBox2D"](
+            center=types["vessel_msgs/msg/Pose2D"](position=types["vessel_msgs/msg/Point2D"](x=640.0, y=420.0),
+                                                   theta=0.0),
+            size_x=40.0,
+            size_y=20.0,
+        ),
+        screen_velocity=types["vessel_msgs/msg/Point2D"](x=1.0, y=0.0),
+        screen_covariance=np.array([4.0, 0.0, 0.0, 4.0]),
+        has_world=True,
+        position=types["geometry_msgs/msg/Point"](x=150.0, y=40.0, z=0.0),
+        velocity=types["geometry_msgs/msg/Vector3"](x=0.0, y=2.5, z=0.0),
+        position_covariance=np.array([25.0, 0.0, 0.0, 25.0]),
+        velocity_covariance=np.array([1.0, 0.0, 0.0, 1.0]),
+        latitude=32.7033,
+        longitude=-117.233,
+        distance_m=155.2,
+        bearing_deg=75.0,
+        expected_error_m=8.0,
+    )
+    with bag_io.BagWriter(tmp_path / "tracks") as writer:
+        writer.add_topic("/vessel/tracks", "vessel_msgs/VesselTrackArray")
+        writer.write("/vessel/tracks", Array(header=bag_io.header(stamp, "camera"), tracks=[track]))
+    with bag_io.BagReader(tmp_path / "tracks") as reader:
+        [(t, message)] = reader.read_topic("/vessel/tracks")
+    assert t == pytest.approx(synthetic.START_UTC)
+    got = message.tracks[0]
+    assert (got.id, got.is_target, got.detection_count, got.latitude) == ("7", True, 12, 32.7033)
+    assert got.bbox.center.position.y == 420.0
+    np.testing.assert_array_equal(got.position_covariance, [25.0, 0.0, 0.0, 25.0])
+
+
+def test_missing_bag_is_a_clear_error(tmp_path):
+    with pytest.raises(DataError, match=r"does not exist.*bag build"):
+        bag_io.BagReader(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataError, match="not a rosbag2 folder"):
+        bag_io.BagReader(tmp_path / "empty")
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage_middle", "garbage_all", "empty"])
+def test_damaged_mcap_names_the_file_and_the_fix(tmp_path, damage):
+    path = tmp_path / "bag"
+    synthetic.write_bag(path, frames=20)
+    mcap = bag_io.mcap_file_of(path)
+    data = bytearray(mcap.read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) * 2 // 3]
+    elif damage == "garbage_middle":
+        rng = np.random.default_rng(1)
+        middle = len(data) // 2
+        data[middle : middle + 2000] = rng.integers(0, 256, 2000, dtype=np.uint8).tobytes()
+    elif damage == "garbage_all":
+        data = bytearray(os.urandom(len(data)))
+    else:
+        data = bytearray()
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(DataError) as caught:
+        with bag_io.BagReader(path) as reader:
+            for _ in reader.images():
+                pass
+    text = str(caught.value)
+    assert str(mcap) in text and "damaged" in text and "rebuild" in text
+
+
+def test_bag_without_the_image_topic(tmp_path):
+    with bag_io.BagWriter(tmp_path / "fixes") as writer:
+        writer.add_topic("/camera/fix", "sensor_msgs/msg/NavSatFix", "latched")
+        writer.write("/camera/fix", bag_io.nav_sat_fix(10**18, 32.7, -117.2))
+    with bag_io.BagReader(tmp_path / "fixes") as reader:
+        with pytest.raises(DataError, match=r"no topic /camera/image_raw/compressed.*it has: /camera/fix"):
+            list(reader.images())
+        with pytest.raises(DataError, match="expected sensor_msgs/msg/CompressedImage"):
+            list(reader.images("/camera/fix"))
+
+
+def test_out_of_order_frames(tmp_path):
+    stamps = [bag_io.sec_to_ns(synthetic.START_UTC + t) for t in (0.0, 0.2, 0.1, 0.4)]
+    with bag_io.BagWriter(tmp_path / "disorder") as writer:
+        writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE)
+        for k, stamp in enumerate(stamps):  # logged in arrival order, stamped out of order
+            writer.write(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.compressed_image(stamp, synthetic.frame_jpeg(k)),
+                         log_time_ns=stamps[0] + k * 100_000_000)
+    with bag_io.BagReader(tmp_path / "disorder") as reader:
+        with pytest.raises(DataError, match=r"out of time order.*message 2.*not after the previous"):
+            list(reader.images())
+        assert [bag_io.sec_to_ns(t) for t, _ in reader.images(strict=False)] == [stamps[0], stamps[1], stamps[3]]
+
+
+def test_writer_refuses_to_overwrite_and_leaves_nothing_on_failure(tmp_path):
+    path = tmp_path / "bag"
+    synthetic.write_bag(path, frames=2)
+    with pytest.raises(DataError, match="exists already.*overwrite"):
+        bag_io.BagWriter(path)
+    before = bag_io.mcap_file_of(path).read_bytes()
+    with pytest.raises(RuntimeError):
+        with bag_io.BagWriter(path, overwrite=True) as writer:
+            writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE)
+            writer.write(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.compressed_image(1, synthetic.frame_jpeg(0)))
+            raise RuntimeError("build failed half way")
+    assert bag_io.mcap_file_of(path).read_bytes() == before  # the old bag is untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]  # no staging folder left
+    synthetic.write_bag(tmp_path / "new", frames=3)
+    with bag_io.BagWriter(path, overwrite=True) as writer:  # replaced only on success
+        writer.add_topic("/x", bag_io.NAV_SAT_FIX)
+        writer.write("/x", bag_io.nav_sat_fix(5, 1.0, 2.0))
+    with bag_io.BagReader(path) as reader:
+        assert reader.topics == {"/x": bag_io.NAV_SAT_FIX}
+
+
+def test_unknown_type_and_unadded_topic(tmp_path):
+    with bag_io.BagWriter(tmp_path / "bag") as writer:
+        with pytest.raises(DataError, match="unknown message type"):
+            writer.add_topic("/a", "nopkg/msg/Nothing")
+        with pytest.raises(DataError, match="not added"):
+            writer.write_cdr("/b", b"\x00\x01\x00\x00", 1)
+        writer.add_topic("/a", bag_io.NAV_SAT_FIX)
+        with pytest.raises(DataError, match="already has type"):
+            writer.add_topic("/a", bag_io.COMPRESSED_IMAGE)
+
+
+def test_corrupt_message_payload_is_named(tmp_path):
+    with bag_io.BagWriter(tmp_path / "bag") as writer:
+        writer.add_topic("/fix", bag_io.NAV_SAT_FIX)
+        writer.write_cdr("/fix", b"\x00\x01\x00\x00\x01\x02", 10**18)
+    with bag_io.BagReader(tmp_path / "bag") as reader:
+        with pytest.raises(DataError, match=r"message on /fix .* does not parse as sensor_msgs/msg/NavSatFix"):
+            reader.fixes("/fix")
+
+
+def test_bag_info_lists_topics(tmp_path):
+    synthetic.write_bag(tmp_path / "bag", frames=3)
+    text = bag_io.bag_info(tmp_path / "bag")
+    assert "/camera/image_raw/compressed [sensor_msgs/msg/CompressedImage] 3 messages" in text
+    assert "duration:  0.400 s" in text
+
+
+def test_single_mcap_file_and_folder_without_metadata(tmp_path):
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=3)
+    mcap = bag_io.mcap_file_of(tmp_path / "bag")
+    with bag_io.BagReader(mcap) as reader:
+        assert [bag_io.sec_to_ns(t) for t, _ in reader.images()] == stamps
+    (tmp_path / "bag" / "metadata.yaml").unlink()  # e.g. a recording whose metadata was never written
+    with bag_io.BagReader(tmp_path / "bag") as reader:
+        assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3

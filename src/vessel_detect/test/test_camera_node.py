@@ -1,0 +1,166 @@
+"""The camera node in its own process, replaying generated bags to a subscriber in this process.
+
+Needs the built workspace (rclpy, vessel_msgs, the installed `camera` executable); skipped without it.
+"""
+
+import os
+import random
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from vessel_detect import bag_io, synthetic
+
+pytestmark = pytest.mark.ros
+
+REPO = Path(__file__).resolve().parents[3]
+CAMERA_EXE = REPO / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
+
+rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: source ros2_ws/install/setup.bash")
+pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
+if not CAMERA_EXE.exists():
+    pytest.skip(f"{CAMERA_EXE} is not installed: run ./vessel setup", allow_module_level=True)
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import CompressedImage, NavSatFix  # noqa: E402
+
+from vessel_msgs.msg import Detection2DArray  # noqa: E402
+
+
+class Probe:
+    """A node in its own rclpy context and DDS domain that records what the camera publishes."""
+
+    def __init__(self, domain_id: int, ack: bool = False) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("camera_test_probe", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.images, self.clock, self.fixes, self.truth, self.diagnostics = [], [], [], [], []
+        self.received_at = []
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.ack_pub = self.node.create_publisher(Detection2DArray, "/vessel/detections", 10) if ack else None
+        self.node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, self._on_image,
+                                      qos_profile_sensor_data)
+        self.node.create_subscription(Clock, "/clock", lambda m: self.clock.append(stamp(m.clock)), reliable)
+        self.node.create_subscription(NavSatFix, "/camera/fix", self.fixes.append, latched)
+        self.node.create_subscription(NavSatFix, "/vessel/gps_truth", self.truth.append, reliable)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, reliable)
+
+    def _on_image(self, message):
+        self.images.append((stamp(message.header.stamp), bytes(message.data)))
+        self.received_at.append(time.monotonic())
+        if self.ack_pub is not None:  # play the detector: its output carries the image's header
+            self.ack_pub.publish(Detection2DArray(header=message.header))
+
+    def spin_while(self, process, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while process.poll() is None and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+        for _ in range(20):  # drain what is still queued
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def camera_counts(self) -> dict:
+        """count.* values of the camera's last diagnostics message."""
+        for array in reversed(self.diagnostics):
+            for status in array.status:
+                if status.name == "camera":
+                    return {v.key: v.value for v in status.values}
+        return {}
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+def stamp(time_msg) -> int:
+    return time_msg.sec * 1_000_000_000 + time_msg.nanosec
+
+
+def start_camera(domain_id: int, *params: str) -> subprocess.Popen:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    args = [str(CAMERA_EXE), "--ros-args"]
+    for p in params:
+        args += ["-p", p]
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def replay(bag, *params, ack=False, timeout_s=60.0):
+    domain_id = random.randint(1, 100)
+    probe = Probe(domain_id, ack=ack)
+    process = start_camera(domain_id, f"source:={bag}", "wait_for_subscribers:=1", "end_linger_s:=0.5", *params)
+    try:
+        probe.spin_while(process, timeout_s)
+        assert process.poll() is not None, "camera node did not exit at the end of the bag"
+        output = process.stdout.read()
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        probe.close()
+    return probe, process.returncode, output
+
+
+@pytest.mark.parametrize(("rate", "frames"), [(1.0, 8), (10.0, 30)])
+def test_replay_delivers_every_frame_with_original_stamps_and_clock(tmp_path, rate, frames):
+    step = 0.2
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=frames, frame_step_s=step)
+    probe, status, output = replay(tmp_path / "bag", f"rate:={rate}")
+    assert status == 0, output
+    assert f"sent {frames} frames, dropped 0, bad 0" in output
+    assert [s for s, _ in probe.images] == stamps  # every frame, in order, original stamps
+    assert [b for _, b in probe.images] == [synthetic.frame_jpeg(k) for k in range(frames)]
+    # /clock follows the stamps: never backwards, hits every frame stamp, from the first to the last.
+    assert probe.clock == sorted(probe.clock)
+    assert set(stamps) <= set(probe.clock)
+    assert probe.clock[0] == stamps[0] and probe.clock[-1] == stamps[-1]
+    assert len(probe.clock) > frames  # advanced between frames too
+    # paced by the stamps (a lower bound only: a loaded machine can only make it slower)
+    assert probe.received_at[-1] - probe.received_at[0] >= 0.5 * (stamps[-1] - stamps[0]) / 1e9 / rate
+    # the bag's other topics are republished
+    assert len(probe.fixes) == 1 and probe.fixes[0].latitude == synthetic.CAMERA_LAT
+    assert [stamp(f.header.stamp) for f in probe.truth] == stamps
+    counts = probe.camera_counts()
+    assert counts["count.frames_sent"] == str(frames) and counts["count.frames_bad"] == "0"
+
+
+def test_as_fast_as_consumed_with_a_bad_frame(tmp_path):
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=10, frame_step_s=4.0, bad_frames=(4,))
+    # wait_for_subscribers -1 (automatic): at rate 0 it holds the first frame for the image subscriber and the
+    # detector (here: this probe publishing the acknowledgements)
+    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=20.0", "wait_for_subscribers:=-1",
+                                   ack=True)
+    assert status == 0, output
+    good = stamps[:4] + stamps[5:]
+    assert [s for s, _ in probe.images] == good  # the unreadable frame is skipped, the rest all arrive
+    assert "unreadable" in output and output.count("logged once") == 1
+    counts = probe.camera_counts()
+    assert counts["count.frames_sent"] == "9" and counts["count.frames_bad"] == "1"
+    assert counts["count.ack_timeouts"] == "0"  # each frame was released by the detections of the previous one
+    assert set(good) <= set(probe.clock) and probe.clock == sorted(probe.clock)
+
+
+def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path):
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=5, frame_step_s=4.0, with_fixes=False)
+    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=0.2", "publish_clock:=false",
+                                   "max_frames:=3")
+    assert status == 0, output
+    assert [s for s, _ in probe.images] == stamps[:3]
+    assert probe.clock == []
+    assert probe.camera_counts()["count.ack_timeouts"] == "3"
+    assert len(probe.fixes) == 1  # no fix in the bag: published from the camera.* parameters
+
+
+def test_bad_source_exits_with_one_error_line(tmp_path):
+    process = start_camera(random.randint(1, 100), f"source:={tmp_path / 'missing'}")
+    output, _ = process.communicate(timeout=60)
+    assert process.returncode == 2
+    assert "error: source" in output and "does not exist" in output and "Traceback" not in output

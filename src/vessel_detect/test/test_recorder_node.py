@@ -1,0 +1,146 @@
+"""The recorder node in its own process: records published topics and leaves a readable bag after SIGINT.
+
+Needs the built workspace (rclpy, vessel_msgs, the installed `recorder` executable); skipped without it.
+"""
+
+import os
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from vessel_detect import bag_io
+
+pytestmark = pytest.mark.ros
+
+REPO = Path(__file__).resolve().parents[3]
+RECORDER_EXE = REPO / "ros2_ws/install/vessel_detect/lib/vessel_detect/recorder"
+
+rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: source ros2_ws/install/setup.bash")
+pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
+if not RECORDER_EXE.exists():
+    pytest.skip(f"{RECORDER_EXE} is not installed: run ./vessel setup", allow_module_level=True)
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
+from sensor_msgs.msg import CompressedImage, NavSatFix  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose  # noqa: E402
+
+T0 = 1_601_495_752_884_000_000
+
+
+def to_time(ns):
+    from builtin_interfaces.msg import Time
+
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def wait(predicate, executor, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        executor.spin_once(timeout_sec=0.05)
+    return predicate()
+
+
+def test_recorder_writes_a_readable_bag_after_sigint(tmp_path):
+    domain_id = random.randint(1, 100)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node("recorder_test_publisher", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    fix_pub = node.create_publisher(NavSatFix, "/vessel/fix", reliable)
+    det_pub = node.create_publisher(Detection2DArray, "/vessel/detections", reliable)
+    camera_fix_pub = node.create_publisher(NavSatFix, "/camera/fix", latched)
+    image_pub = node.create_publisher(CompressedImage, "/camera/image_raw/compressed", qos_profile_sensor_data)
+    note_pub = node.create_publisher(String, "/notes", reliable)
+    recorded_counts = []
+
+    def on_diagnostics(array):
+        for status in array.status:
+            if status.name == "recorder":
+                recorded_counts.extend(int(v.value) for v in status.values if v.key == "count.messages")
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, reliable)
+    camera_fix = NavSatFix(latitude=32.70297, longitude=-117.234631)
+    camera_fix.header.stamp = to_time(T0)
+    camera_fix_pub.publish(camera_fix)  # before the recorder starts: it must still get it (transient local)
+
+    output = tmp_path / "recording"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    topics = "['/vessel/fix', '/vessel/detections:vessel_msgs/msg/Detection2DArray', '/camera/fix', " \
+             "'/camera/image_raw/compressed', '/notes']"
+    process = subprocess.Popen(
+        [str(RECORDER_EXE), "--ros-args", "-p", f"output:={output}", "-p", f"topics:={topics}",
+         "-p", "discovery_period_s:=0.1"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    count = 20
+    try:
+        publishers = (fix_pub, det_pub, image_pub, note_pub)
+        assert wait(lambda: all(p.get_subscription_count() > 0 for p in publishers), executor, 30), \
+            "the recorder never subscribed"
+        for k in range(count):
+            stamp = T0 + k * 250_000_000
+            fix = NavSatFix(latitude=32.7 + k * 1e-5, longitude=-117.23)
+            fix.header.stamp = to_time(stamp)
+            fix_pub.publish(fix)
+            detections = Detection2DArray()
+            detections.header.stamp = to_time(stamp)
+            detections.header.frame_id = "camera"
+            detection = Detection2D(id=str(k))
+            detection.bbox.center.position.x = 100.0 + k
+            hypothesis = ObjectHypothesisWithPose()
+            hypothesis.hypothesis.class_id = "boat"
+            hypothesis.hypothesis.score = 0.5
+            detection.results = [hypothesis]
+            detections.detections = [detection]
+            det_pub.publish(detections)
+            image = CompressedImage(format="jpeg")
+            image.header.stamp = to_time(stamp)
+            image.data = bytes([k]) * 1000
+            image_pub.publish(image)
+            note_pub.publish(String(data=f"note {k}"))
+            executor.spin_once(timeout_sec=0.01)
+        # Wait until the recorder reports them all (its diagnostics count), then stop it like the demo does.
+        wait(lambda: recorded_counts and recorded_counts[-1] >= 4 * count + 1, executor, 15)
+        process.send_signal(signal.SIGINT)
+        log, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    assert process.returncode == 0, log
+    assert "closed" in log and "Traceback" not in log
+
+    meta = yaml.safe_load((output / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    assert counts["/vessel/fix"] == count and counts["/vessel/detections"] == count
+    assert counts["/camera/fix"] == 1 and counts["/notes"] == count
+    assert counts["/camera/image_raw/compressed"] >= count - 2  # best effort: nearly all
+    with bag_io.BagReader(output) as reader:
+        fixes = reader.fixes("/vessel/fix")
+        assert [bag_io.sec_to_ns(t) for t in fixes.stamps] == [T0 + k * 250_000_000 for k in range(count)]
+        assert list(fixes.lats) == [32.7 + k * 1e-5 for k in range(count)]
+        recorded = reader.read_topic("/vessel/detections")
+        assert [m.detections[0].id for _, m in recorded] == [str(k) for k in range(count)]
+        assert recorded[3][1].detections[0].results[0].hypothesis.class_id == "boat"
+        # log time == header stamp where there is one
+        assert [bag_io.sec_to_ns(t) for t, _ in recorded] == [T0 + k * 250_000_000 for k in range(count)]
+        assert reader.topics["/notes"] == "std_msgs/msg/String"  # type taken from the graph
+        assert reader.fixes("/camera/fix").lats[0] == 32.70297
+    assert sum(1 for m in bag_io.iter_mcap(output) if m.topic == "/vessel/fix") == count  # mcap reads it too

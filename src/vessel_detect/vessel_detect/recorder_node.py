@@ -1,0 +1,209 @@
+"""Recorder node: writes chosen topics into a rosbag2 MCAP folder as they arrive.
+
+It is a `ros2 bag record` for installs without the rosbag2 tools, writing the same format. Each topic is
+subscribed once a publisher appears, with QoS adapted to what the publishers offer (so best-effort and latched
+topics are recorded too) and the type taken from the parameter or from the graph. Messages are stored as
+received (serialised CDR, no decode); the log time is the message's header stamp where it has one (so a replayed
+bag lines up with its source), else the receive time on the node's clock (sim time under `use_sim_time`). On
+SIGINT/SIGTERM the bag is closed properly: index, summary and metadata.yaml written, nothing received is lost.
+
+    ros2 run vessel_detect recorder --ros-args -p output:=out/run1 \
+        -p topics:="['/vessel/fix', '/vessel/tracks:vessel_msgs/msg/VesselTrackArray']"
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from vessel_calib.errors import DataError, VesselError
+from vessel_calib.node_support import NodeHealth, declare_parameter, main_for
+from vessel_detect import bag_io
+from vessel_detect.ros_messages import message_class
+
+DEFAULT_TOPICS = [
+    "/vessel/detections:vessel_msgs/msg/Detection2DArray",
+    "/vessel/tracks/screen:vessel_msgs/msg/VesselTrackArray",
+    "/vessel/tracks:vessel_msgs/msg/VesselTrackArray",
+    "/vessel/fix:sensor_msgs/msg/NavSatFix",
+    "/vessel/fixes",
+    "/vessel/gps_truth:sensor_msgs/msg/NavSatFix",
+    "/camera/fix:sensor_msgs/msg/NavSatFix",
+    "/diagnostics:diagnostic_msgs/msg/DiagnosticArray",
+]
+"""The graph's outputs; `/vessel/fixes` takes its type from the graph (it depends on the GPS publisher's mode)."""
+
+_NS_PER_S = 1_000_000_000
+_CDR_LITTLE_ENDIAN = (b"\x00\x01", b"\x00\x03")  # CDR_LE, PL_CDR_LE encapsulation ids
+
+
+@dataclass
+class TopicPlan:
+    """A topic to record: its name, type (empty until known) and whether it starts with a std_msgs/Header."""
+
+    name: str
+    msgtype: str = ""
+    has_header: bool = False
+    subscribed: bool = False
+    count: int = 0
+
+
+def parse_topic_entry(entry: str) -> TopicPlan:
+    """`/name` or `/name:pkg/msg/Type` (or `pkg/Type`) -> TopicPlan."""
+    name, _, msgtype = entry.strip().partition(":")
+    name = name.strip()
+    if not name.startswith("/") or " " in name:
+        raise DataError(f"topic entry {entry!r}: the topic must be an absolute name like /vessel/fix")
+    return TopicPlan(name, bag_io.normalise_msgtype(msgtype) if msgtype.strip() else "")
+
+
+def header_stamp_ns(cdr: bytes) -> int | None:
+    """The header stamp of a serialised message whose first field is a std_msgs/Header (CDR: it leads)."""
+    if len(cdr) < 12:
+        return None
+    fmt = "<iI" if cdr[:2] in _CDR_LITTLE_ENDIAN else ">iI"
+    sec, nanosec = struct.unpack_from(fmt, cdr, 4)
+    if sec <= 0 and nanosec == 0:
+        return None  # an unset stamp says nothing about time
+    return sec * _NS_PER_S + nanosec
+
+
+def starts_with_header(msgtype: str) -> bool:
+    """Whether the type's first field is a std_msgs/Header (rosbags type store)."""
+    store = bag_io.typestore()
+    if msgtype not in store.fielddefs:
+        return False
+    fields = store.fielddefs[msgtype][1]
+    return bool(fields) and fields[0][1][0].name == "NAME" and fields[0][1][1] == "std_msgs/msg/Header"
+
+
+class RecorderNode(Node):
+    """Record topics into a rosbag2 MCAP folder; see the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__("recorder")
+        output = declare_parameter(
+            self, "output", "", "Bag folder to create (default: rosbag2_<UTC date-time> in the working directory)."
+        )
+        entries = declare_parameter(
+            self,
+            "topics",
+            DEFAULT_TOPICS,
+            "Topics to record, each '/name' (type from the graph) or '/name:pkg/msg/Type'.",
+        )
+        self.overwrite = declare_parameter(self, "overwrite", False, "Replace an existing bag at 'output'.")
+        self.discovery_period_s = declare_parameter(
+            self, "discovery_period_s", 0.5, "How often to look for publishers of topics not yet subscribed.",
+            float_range=(0.05, 60.0),
+        )
+        self.depth = declare_parameter(
+            self, "queue_depth", 100, "Subscription queue depth per topic.", int_range=(1, 100000)
+        )
+        self.plans = [parse_topic_entry(e) for e in entries if e.strip()]
+        if not self.plans:
+            raise DataError("parameter 'topics' is empty: name at least one topic to record")
+        if not output:
+            output = f"rosbag2_{datetime.now(tz=UTC).strftime('%Y_%m_%d-%H_%M_%S')}"
+        self.output = Path(output).expanduser()
+        self.health = NodeHealth(self, hardware_id="recorder")
+        self.health.count("messages", 0)
+        self.health.set_value("output", str(self.output))
+        self.writer = bag_io.BagWriter(self.output, overwrite=self.overwrite, atomic=False).open()
+        self.finished = False
+        self._closed = False
+        self._last_progress = time.monotonic()
+        self.create_timer(self.discovery_period_s, self._discover)
+        self._discover()
+        self.get_logger().info(
+            f"recording {', '.join(p.name for p in self.plans)} into {self.output} (SIGINT to stop and close)"
+        )
+
+    # ------------------------------------------------------------------------------------------------ discovery
+    def _discover(self) -> None:
+        for plan in self.plans:
+            if plan.subscribed:
+                continue
+            infos = self.get_publishers_info_by_topic(plan.name)
+            if not infos:
+                continue
+            try:
+                self._subscribe(plan, infos)
+            except VesselError as error:
+                plan.subscribed = True  # do not retry every period
+                self.health.problem("topic_unrecordable", f"cannot record {plan.name}: {error}")
+
+    def _subscribe(self, plan: TopicPlan, infos) -> None:
+        types = {bag_io.normalise_msgtype(i.topic_type) for i in infos}
+        if not plan.msgtype:
+            if len(types) != 1:
+                raise DataError(f"publishers disagree on the type ({', '.join(sorted(types))}); name it")
+            plan.msgtype = types.pop()
+        elif plan.msgtype not in types:
+            raise DataError(f"configured as {plan.msgtype} but published as {', '.join(sorted(types))}")
+        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=self.depth,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+        )
+        self.writer.add_topic(
+            plan.name, plan.msgtype, "latched" if latched else ("reliable" if reliable else "sensor_data")
+        )
+        plan.has_header = starts_with_header(plan.msgtype)
+        self.create_subscription(
+            message_class(plan.msgtype), plan.name, lambda cdr, p=plan: self._on_message(p, cdr), qos, raw=True
+        )
+        plan.subscribed = True
+        self.get_logger().info(
+            f"recording {plan.name} [{plan.msgtype}] ({'reliable' if reliable else 'best effort'}"
+            f"{', transient local' if latched else ''})"
+        )
+
+    # ------------------------------------------------------------------------------------------------ messages
+    def _on_message(self, plan: TopicPlan, cdr: bytes) -> None:
+        if self._closed:
+            return
+        log_ns = header_stamp_ns(cdr) if plan.has_header else None
+        if log_ns is None:
+            log_ns = self.get_clock().now().nanoseconds
+        try:
+            self.writer.write_cdr(plan.name, cdr, log_ns)
+        except VesselError as error:
+            self.health.problem("write_failed", f"cannot write a message of {plan.name}: {error}")
+            return
+        plan.count += 1
+        self.health.count("messages")
+        if time.monotonic() - self._last_progress > 5.0:
+            self._last_progress = time.monotonic()
+            self.health.set_value("counts", ", ".join(f"{p.name}={p.count}" for p in self.plans if p.subscribed))
+
+    def close(self) -> None:
+        """Finish the bag (called by run_node on SIGINT/SIGTERM and at shutdown)."""
+        if self._closed:
+            return
+        self._closed = True
+        path = self.writer.close()
+        counts = ", ".join(f"{p.name} {p.count}" for p in self.plans if p.count)
+        never = [p.name for p in self.plans if not p.subscribed]
+        summary = f"bag {path} closed: {self.writer.message_count} messages ({counts or 'none'})" + (
+            f"; never published: {', '.join(never)}" if never else ""
+        )
+        if self.context.ok():
+            self.get_logger().info(summary)
+        else:  # after SIGINT the context is gone and the ROS logger can no longer reach /rosout
+            print(f"[recorder] {summary}", file=sys.stderr, flush=True)
+
+
+main = main_for(RecorderNode)
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,117 @@
+"""Replay a bag through the camera node (its own process) and count what a subscriber here receives.
+
+Prints the frames in the bag, the frames received with their original stamps, whether /clock followed the
+stamps, and the wall time against the bag's duration / rate. Needs the built workspace.
+
+    python -m vessel_detect.replay_check bags/video_13 --rate 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from vessel_calib.errors import VesselError
+from vessel_detect import bag_io
+
+
+def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: float | None = None) -> dict:
+    """Run the replay and return the figures (see the module docstring)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import CompressedImage
+
+    with bag_io.BagReader(bag) as reader:
+        expected = [bag_io.sec_to_ns(t) for t, _ in reader.images()]
+    if not expected:
+        raise VesselError(f"{bag} has no images")
+    domain_id = random.randint(1, 100)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node("replay_check", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    received: list[int] = []
+    arrival: list[float] = []
+    clock: list[int] = []
+
+    def on_image(message) -> None:
+        received.append(message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec)
+        arrival.append(time.monotonic())
+
+    qos = qos_profile_sensor_data if image_qos == "sensor_data" else QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, on_image, qos)
+    node.create_subscription(
+        Clock, "/clock", lambda m: clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
+    )
+    from vessel_calib.dataset import repo_root
+
+    exe = repo_root() / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    started = time.monotonic()
+    process = subprocess.Popen(
+        [str(exe), "--ros-args", "-p", f"source:={bag}", "-p", f"rate:={rate}", "-p", "wait_for_subscribers:=1",
+         "-p", f"image_qos:={image_qos}", "-p", "end_linger_s:=0.5"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    span_s = (expected[-1] - expected[0]) / 1e9
+    limit = timeout_s or (span_s / rate + 60.0 if rate > 0 else 600.0)
+    try:
+        while process.poll() is None and time.monotonic() - started < limit:
+            executor.spin_once(timeout_sec=0.02)
+        for _ in range(20):
+            executor.spin_once(timeout_sec=0.01)
+    finally:
+        if process.poll() is None:
+            process.kill()
+        output = process.communicate()[0]
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    return {
+        "bag": str(bag),
+        "rate": rate,
+        "frames_in_bag": len(expected),
+        "frames_received": len(received),
+        "stamps_identical": received == expected,
+        "clock_messages": len(clock),
+        "clock_monotonic": clock == sorted(clock),
+        "clock_hits_every_stamp": set(expected) <= set(clock),
+        "bag_span_s": span_s,
+        "replay_span_s": (arrival[-1] - arrival[0]) if len(arrival) > 1 else 0.0,
+        "camera_exit_status": process.returncode,
+        "camera_summary": next((ln for ln in output.splitlines() if "ended:" in ln), output.strip()[-300:]),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: print the figures of one or more replays."""
+    parser = argparse.ArgumentParser(prog="replay_check", description=__doc__.splitlines()[0])
+    parser.add_argument("bags", type=Path, nargs="+")
+    parser.add_argument("--rate", type=float, action="append", help="rate factor(s) (default 10)")
+    parser.add_argument("--image-qos", default="sensor_data", choices=["sensor_data", "reliable"])
+    args = parser.parse_args(argv)
+    try:
+        for bag in args.bags:
+            for rate in args.rate or [10.0]:
+                figures = check(bag, rate, args.image_qos)
+                print(" ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items()
+                               if k != "camera_summary"))
+                print(f"  camera: {figures['camera_summary']}")
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
