@@ -1,1 +1,4 @@
-"""GPS-only camera calibration for monocular vessel tracking: geodesy, camera model (homography + radial K1), calibration fit and parameter files."""
+"""GPS-only camera calibration for monocular vessel tracking.
+
+Geodesy, the camera model (homography + radial K1), the calibration fit and the parameter files.
+"""

@@ -280,6 +280,14 @@ class CameraModel:
         h = self._H[2]
         return h[0] * _arr(xw) + h[1] * _arr(yw) + h[2]
 
+    def depth_m(self, xw, yw):
+        """Distance in metres of world points in front of the camera's principal line (scale-free z_p).
+
+        ``-z_p / |(H[2,0], H[2,1])|``: positive in front, about the depth along the viewing direction for a
+        near-level camera. Unlike z_p it does not depend on the arbitrary scale of H.
+        """
+        return -self.zp_of_world(xw, yw) / math.hypot(self._H[2, 0], self._H[2, 1])
+
     def world_to_ideal(self, xw, yw):
         """World metres -> (x_p, y_p, z_p), the paper's homography equation (NaN x_p, y_p where z_p = 0)."""
         xw = _arr(xw)

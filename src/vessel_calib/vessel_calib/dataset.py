@@ -336,11 +336,20 @@ class Dataset:
                                    primary, row.get("paper_split", "").strip()))
         return out
 
-    def calibration_pairs(self, videos=None) -> tuple[np.ndarray, np.ndarray]:
-        """(screen (N,2) box centres, gps (N,2) lat/lon) of primary labels with gps_ok=1 in ``videos``."""
+    def calibration_pairs(self, videos=None, merge_same_frame: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(screen (N,2) box centres, gps (N,2) lat/lon) of primary labels with gps_ok=1 in ``videos``.
+
+        Some frames carry two primary labels (from two labelling sources): with ``merge_same_frame`` their
+        centres are averaged into one pair, so one instant counts once and the fit sees no duplicate GPS point.
+        """
         labels = [lab for lab in self.labels(videos, primary_only=True) if lab.gps_ok]
-        screen = np.array([lab.center for lab in labels], dtype=float).reshape(-1, 2)
-        gps = np.array([(lab.lat, lab.lon) for lab in labels], dtype=float).reshape(-1, 2)
+        groups: dict[tuple[int, int], list[LabelRecord]] = {}
+        for lab in labels:
+            key = (lab.video, lab.frame) if merge_same_frame else (lab.video, id(lab))
+            groups.setdefault(key, []).append(lab)
+        screen = np.array([np.mean([lab.center for lab in group], axis=0) for group in groups.values()],
+                          dtype=float).reshape(-1, 2)
+        gps = np.array([(group[0].lat, group[0].lon) for group in groups.values()], dtype=float).reshape(-1, 2)
         return screen, gps
 
     # ----------------------------------------------------------------- GPS

@@ -65,6 +65,11 @@ def bearing_deg(lat1, lon1, lat2, lon2):
     return _out(np.degrees(np.arctan2(yy, xx)) % 360.0)
 
 
+def _show(values: np.ndarray):
+    """Plain numbers for messages (no ``np.float64(...)``), the first offending few for arrays."""
+    return float(values) if values.ndim == 0 else values.ravel()[:5].tolist()
+
+
 def validate_lat_lon(lat, lon, what: str, error: type[VesselError] = CalibrationError) -> None:
     """Raise ``error`` naming ``what`` unless every lat is in [-90, 90] and lon in [-180, 180], all finite.
 
@@ -75,11 +80,12 @@ def validate_lat_lon(lat, lon, what: str, error: type[VesselError] = Calibration
         lon_a = np.asarray(lon, dtype=float)
     except (TypeError, ValueError):
         raise error(f"{what}: latitude/longitude must be numbers in degrees, got {lat!r}, {lon!r}") from None
+    lat, lon = _show(lat_a), _show(lon_a)
     if not (np.all(np.isfinite(lat_a)) and np.all(np.isfinite(lon_a))):
-        raise error(f"{what}: latitude/longitude must be finite, got {lat!r}, {lon!r}; give WGS-84 degrees")
+        raise error(f"{what}: latitude/longitude must be finite, got {lat}, {lon}; give WGS-84 degrees")
     if np.any(np.abs(lat_a) > 90.0):
-        raise error(f"{what}: latitude {lat!r} is outside [-90, 90]; are latitude and longitude swapped?")
+        raise error(f"{what}: latitude {lat} is outside [-90, 90]; are latitude and longitude swapped?")
     if np.any(np.abs(lon_a) > 180.0):
-        raise error(f"{what}: longitude {lon!r} is outside [-180, 180]; give WGS-84 degrees, east positive")
+        raise error(f"{what}: longitude {lon} is outside [-180, 180]; give WGS-84 degrees, east positive")
     if np.any((lat_a == 0.0) & (lon_a == 0.0)):
         raise error(f"{what}: position (0, 0) is the GPS 'no fix' value, not a real position")

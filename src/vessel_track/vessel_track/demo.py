@@ -86,7 +86,8 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path) -> Path
             target = out / "calibration.yaml"
             videos = ",".join(str(v) for v in train)
             log(f"calibrating from {source.path} training videos {videos} -> {target}")
-            status = calibrate_node.main(["--data", str(source.path), "--videos", videos, "--out", str(target)])
+            status = calibrate_node.main(["--data", str(source.path), "--videos", videos, "--label-passes", "all",
+                                          "--out", str(target)])
             if status != 0:
                 raise VesselError(f"calibration from {source.path} failed (status {status}); pass --calib FILE")
             return target

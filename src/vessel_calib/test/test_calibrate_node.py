@@ -1,0 +1,219 @@
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
+
+from vessel_calib import calibrate_node, geodesy
+from vessel_calib.calibration import evaluate
+from vessel_calib.params import load_camera_yaml
+
+SRC = str(Path(__file__).resolve().parents[1])
+REPO = Path(__file__).resolve().parents[3]
+CAM_ARGS = ["--camera-lat", str(CAMERA_LAT), "--camera-lon", str(CAMERA_LON), "--image-size", "1280x720"]
+
+
+def write_pairs(path, screen, gps, header="x,y,lat,lon"):
+    rows = [header] + [",".join(repr(float(v)) for v in (*s, *g)) for s, g in zip(screen, gps, strict=True)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.fixture
+def pairs_csv(tmp_path):
+    screen, gps = synthetic_pairs(pinhole_camera(), 20, seed=21)
+    return write_pairs(tmp_path / "pairs.csv", screen, gps)
+
+
+def run_cli(args, capsys):
+    status = calibrate_node.main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def test_pairs_csv_to_yaml_and_picture(tmp_path, pairs_csv, capsys):
+    out = tmp_path / "cal" / "camera.yaml"
+    status, stdout, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--out", out], capsys)
+    assert status == 0, err
+    assert "reprojection" in stdout and "back-projected" in stdout and "heading" in stdout
+    doc = yaml.safe_load(out.read_text())
+    block = doc["/**"]["ros__parameters"]["camera"]
+    assert len(block["H"]) == 9 and block["image_width"] == 1280
+    model = load_camera_yaml(out)
+    assert model.heading_deg == pytest.approx(pinhole_camera().heading_deg, abs=1e-3)
+    picture = out.with_suffix(".png")
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in out.parent.iterdir()) == ["camera.png", "camera.yaml"]
+
+
+def test_pairs_with_times_and_gpx(tmp_path, capsys):
+    cam = pinhole_camera()
+    screen, gps = synthetic_pairs(cam, 12, seed=22)
+    t0 = 1601494588.0
+    times = t0 + 10.0 * np.arange(len(screen))
+    points = "".join(f'<trkpt lat="{float(la)!r}" lon="{float(lo)!r}"><time>{t}</time></trkpt>'
+                     for la, lo, t in zip(gps[:, 0], gps[:, 1],
+                                          [time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t)) for t in times],
+                                          strict=True))
+    gpx = tmp_path / "track.gpx"
+    gpx.write_text(f'<gpx xmlns="http://www.topografix.com/GPX/1/1"><trk><trkseg>{points}</trkseg></trk></gpx>')
+    rows = ["x,y,t"] + [",".join(repr(float(v)) for v in (*s, t)) for s, t in zip(screen, times, strict=True)]
+    rows.append(f"640,500,{t0 + 5000.0}")  # no fix near this time: dropped with a note
+    csv_path = tmp_path / "timed.csv"
+    csv_path.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "cal.yaml"
+    status, stdout, err = run_cli(["--pairs-csv", csv_path, "--gps", gpx, *CAM_ARGS, "--out", out, "--no-picture"],
+                                  capsys)
+    assert status == 0, err
+    assert "1 pair(s) dropped" in stdout
+    assert evaluate(load_camera_yaml(out), screen, gps).reproj_max_px < 1e-3
+
+
+@pytest.mark.parametrize("case, match", [
+    ("few", "at least 4"),
+    ("nan", "pair 1"),
+    ("dup", "same screen point"),
+    ("collinear", "collinear"),
+    ("sky", "above the fitted horizon"),
+    ("columns", "missing columns lat,lon"),
+    ("camera", "camera position"),
+    ("garbage", "row 3, column 'y'"),
+])
+def test_bad_input_one_line_error_and_no_file(tmp_path, capsys, case, match):
+    cam = pinhole_camera()
+    screen, gps = synthetic_pairs(cam, 12, seed=23)
+    args = [*CAM_ARGS]
+    path = tmp_path / "pairs.csv"
+    if case == "few":
+        write_pairs(path, screen[:3], gps[:3])
+    elif case == "nan":
+        screen[1, 0] = np.nan
+        write_pairs(path, screen, gps)
+    elif case == "dup":
+        screen[3] = screen[0]
+        write_pairs(path, screen, gps)
+    elif case == "collinear":
+        t = np.linspace(0, 1, 8)
+        xs, ys, _ = cam.world_to_screen(60 + 100 * t, 10 + 25 * t)
+        lat, lon = cam.world_to_gps(60 + 100 * t, 10 + 25 * t)
+        write_pairs(path, np.column_stack([xs, ys]), np.column_stack([lat, lon]))
+    elif case == "sky":
+        write_pairs(path, np.vstack([screen, [640.0, 120.0]]),
+                    np.vstack([gps, geodesy.local_to_gps(300.0, 60.0, CAMERA_LAT, CAMERA_LON)]))
+    elif case == "columns":
+        path.write_text("x,y,latitude_deg\n1,2,3\n")
+    elif case == "camera":
+        write_pairs(path, screen, gps)
+        args = ["--camera-lat", "132.7", "--camera-lon", "-117.2"]
+    elif case == "garbage":
+        write_pairs(path, screen, gps)
+        lines = path.read_text().splitlines()
+        lines[2] = lines[2].split(",")[0] + ",abc," + ",".join(lines[2].split(",")[2:])
+        path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out" / "cal.yaml"
+    status, stdout, err = run_cli(["--pairs-csv", path, *args, "--out", out], capsys)
+    assert status == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in err
+    assert match in lines[0]
+    assert not out.exists() and not (tmp_path / "out").exists()
+
+
+def test_argparse_errors_are_one_line(capsys):
+    status, _, err = run_cli(["--pairs", "many"], capsys)
+    assert status == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1
+
+
+def test_ros_args_parameters(tmp_path, pairs_csv, capsys):
+    out = tmp_path / "ros.yaml"
+    status, stdout, err = run_cli(["--ros-args", "-p", f"pairs_csv:={pairs_csv}", "-p", f"camera_lat:={CAMERA_LAT}",
+                                   "-p", f"camera_lon:={CAMERA_LON}", "-p", f"out:={out}", "-p", "no_picture:=true",
+                                   "-r", "__node:=calib", "--"], capsys)
+    assert status == 0, err
+    assert out.exists() and not out.with_suffix(".png").exists()
+
+
+def test_ros_params_file_block(tmp_path, pairs_csv, capsys):
+    out = tmp_path / "from_file.yaml"
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"use_sim_time": False}},
+        "calibrate": {"ros__parameters": {"pairs_csv": str(pairs_csv), "camera_lat": CAMERA_LAT,
+                                          "camera_lon": CAMERA_LON, "out": str(out), "no_picture": True,
+                                          "robust": True, "evaluate_on": ""}},
+        "tracker": {"ros__parameters": {"anything": 1}}}))
+    status, stdout, err = run_cli(["--ros-args", "--params-file", params], capsys)
+    assert status == 0, err
+    assert out.exists()
+    status, _, err = run_cli(["--ros-args", "-p", "no_such_option:=1"], capsys)
+    assert status == 2 and "unknown parameter 'no_such_option'" in err
+
+
+def test_only_ros_args_without_data_says_what_it_needs(monkeypatch, capsys):
+    import vessel_calib.dataset as dataset_module
+
+    monkeypatch.setattr(dataset_module, "default_data_dir", lambda: None)
+    status, stdout, err = run_cli(["--ros-args"], capsys)
+    assert status == 0 and "nothing to do" in stdout and "--data" in stdout
+
+
+def test_interrupt_writes_nothing(tmp_path, pairs_csv, monkeypatch, capsys):
+    import vessel_calib.calibration as calibration_module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibration_module, "calibrate", interrupted)
+    out = tmp_path / "cal.yaml"
+    status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--out", out], capsys)
+    assert status == 0 and "interrupted, nothing written" in err
+    assert list(tmp_path.iterdir()) == [pairs_csv]
+
+
+def test_interrupt_while_drawing_the_picture_leaves_nothing(tmp_path, pairs_csv, monkeypatch, capsys):
+    import vessel_calib.calibration_plot as plot_module
+
+    def interrupted(path, *args, **kwargs):
+        Path(path).write_bytes(b"half a png")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plot_module, "render_calibration_picture", interrupted)
+    status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--out", tmp_path / "cal.yaml"], capsys)
+    assert status == 0 and "interrupted, nothing written" in err
+    assert list(tmp_path.iterdir()) == [pairs_csv]
+
+
+# ----------------------------------------------------------------------------- shared data
+def test_sigint_during_a_real_run_exits_zero_and_writes_nothing(dataset, tmp_path):
+    out = tmp_path / "cal.yaml"
+    env = {"PYTHONPATH": SRC, "PATH": "/usr/bin:/bin", "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "vessel_calib.calibrate_node", "--data", str(dataset.path),
+                             "--out", str(out), "--evaluate-on", "13-17", "--draws", "200"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    # wait until it is fitting (its first report line), then interrupt
+    first = proc.stdout.readline()
+    assert first.startswith("calibrate: fitted on"), first
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert "interrupted, nothing written" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_command_contract_on_shared_data(dataset, tmp_path, capsys):
+    out = tmp_path / "c.yaml"
+    status, stdout, err = run_cli(["--data", dataset.path, "--videos", "7-12", "--out", out, "--pairs", "11",
+                                   "--seed", "3", "--no-picture"], capsys)
+    assert status == 0, err
+    assert "11 of 64 pairs" in stdout
+    block = yaml.safe_load(out.read_text())["/**"]["ros__parameters"]["camera"]
+    for key in ("camera_lat", "camera_lon", "image_width", "image_height", "H", "K1", "center_x", "center_y",
+                "heading_deg"):
+        assert key in block
+    status, _, err = run_cli(["--data", dataset.path, "--videos", "6", "--out", tmp_path / "d.yaml"], capsys)
+    assert status == 2 and "no labelled pairs" in err and not (tmp_path / "d.yaml").exists()

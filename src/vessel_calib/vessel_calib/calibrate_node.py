@@ -1,0 +1,520 @@
+"""``calibrate``: fit the camera model from labelled (screen, GPS) pairs and write the ROS parameter YAML.
+
+Offline tool (an executable of the package so ``ros2 run vessel_calib calibrate`` finds it); it does not need a
+ROS graph. Inputs, one of:
+
+* ``--data DIR --videos 7-12 [--pairs 11 --seed N]``: a folder laid out like ``../shared/aitas``; pairs are the
+  primary box centres with ``gps_ok=1`` (labels of the same frame averaged); ``--label-passes all`` also
+  averages in the second labelling pass (``primary=0``) of the same frames.
+* ``--pairs-csv FILE``: columns ``x,y,lat,lon`` (or ``x1,y1,x2,y2`` box corners instead of ``x,y``), or
+  ``x,y,t`` with ``--gps FILE`` (CSV or GPX fixes, interpolated at ``t``; ``t`` in the same clock as the fixes:
+  epoch seconds or ISO-8601), with ``--camera-lat/--camera-lon`` and ``--image-size``.
+
+Output: ``--out FILE.yaml`` (``/**: ros__parameters: camera: {...}``, atomic), a report on stdout and a picture
+(``--picture``, default next to the YAML). ``--evaluate-on 13-17`` prints validation figures, ``--draws 20``
+the spread over random draws of ``--pairs`` training pairs (the paper's protocol).
+
+ROS style works too: ``ros2 run vessel_calib calibrate --ros-args -p data:=DIR -p out:=FILE.yaml``. With no
+input at all it calibrates the default data set (``$VESSEL_DATA`` or ``../shared/aitas``) into
+``out/calibration/``, or says what it needs and exits 0. Bad input: ``error: ...`` on stderr, exit 2, nothing
+written. Ctrl-C: ``interrupted, nothing written``, exit 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import shlex
+import signal
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from vessel_calib.errors import CalibrationError, DataError, VesselError
+
+if TYPE_CHECKING:
+    from vessel_calib.calibration import CalibrationResult, FitOptions
+    from vessel_calib.dataset import Dataset
+
+# Heavy modules (numpy, scipy, matplotlib) are imported inside the functions, after main() has taken over
+# SIGINT, so Ctrl-C during start-up still ends with "interrupted, nothing written" instead of a traceback.
+
+DEFAULT_TRAIN_VIDEOS = "7-12"
+DEFAULT_EVAL_VIDEOS = "13-17"
+
+_X_NAMES = ("x", "xs", "x_s", "screen_x", "u")
+_Y_NAMES = ("y", "ys", "y_s", "screen_y", "v")
+_LAT_NAMES = ("lat", "latitude")
+_LON_NAMES = ("lon", "lng", "long", "longitude")
+_T_NAMES = ("t", "time", "stamp", "utc", "t_utc_s", "timestamp")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line ``error: ...`` and exit status 2."""
+
+    def error(self, message):
+        print(f"error: {message} (see calibrate --help)", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line interface."""
+    from vessel_calib.calibration import LOSSES
+
+    p = _Parser(prog="calibrate", description=__doc__.split("\n\n")[0],
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    src = p.add_argument_group("input")
+    src.add_argument("--data", help="data folder laid out like ../shared/aitas")
+    src.add_argument("--videos", help=f"videos to fit on (default {DEFAULT_TRAIN_VIDEOS})")
+    src.add_argument("--pairs", type=int, help="use a random draw of this many pairs (the paper used 11)")
+    src.add_argument("--seed", type=int, default=0, help="random seed of --pairs / --draws (default 0)")
+    src.add_argument("--label-passes", choices=("primary", "all"), default="primary",
+                     help="data folder: average only primary labels per frame, or all labelling passes")
+    src.add_argument("--pairs-csv", help="CSV of labelled pairs: x,y,lat,lon or x,y,t (with --gps)")
+    src.add_argument("--gps", help="GPS fixes (CSV or GPX) to look up the position at each pair's t")
+    src.add_argument("--max-gap-s", type=float, default=3.0, help="longest GPS gap to interpolate across (s)")
+    src.add_argument("--camera-lat", type=float, help="camera latitude (degrees; default from camera.json)")
+    src.add_argument("--camera-lon", type=float, help="camera longitude (degrees; default from camera.json)")
+    src.add_argument("--image-size", help="WIDTHxHEIGHT of the labelled frames (default 1280x720 or camera.json)")
+    src.add_argument("--center", help="distortion centre X,Y (default: image centre)")
+    fit = p.add_argument_group("fit")
+    fit.add_argument("--method", choices=("refined", "paper"), default="refined",
+                     help="refined: joint H+K1 refinement (default); paper: K1 scan + DLT only")
+    fit.add_argument("--loss", choices=LOSSES, default="soft_l1", help="refinement loss (default soft_l1)")
+    fit.add_argument("--robust", nargs="?", const="soft_l1", choices=LOSSES[1:], metavar="LOSS",
+                     help="robust loss (soft_l1 if no LOSS given); the default loss is already soft_l1")
+    fit.add_argument("--robust-scale", type=float, default=3.0, help="robust loss scale, px (default 3)")
+    fit.add_argument("--far-weight", type=float, default=0.0,
+                     help="weight pairs by (distance/100 m)^A to favour far accuracy (default 0)")
+    fit.add_argument("--k1", type=float, help="fix K1 to this value instead of fitting it")
+    out = p.add_argument_group("output")
+    out.add_argument("--out", help="parameter YAML to write (default out/calibration/<name>_camera.yaml)")
+    out.add_argument("--picture", help="calibration picture PNG (default next to the YAML)")
+    out.add_argument("--no-picture", action="store_true", help="do not draw the picture")
+    out.add_argument("--frame", help="camera frame to draw the picture on (default: a frame of the data set)")
+    study = p.add_argument_group("study")
+    study.add_argument("--evaluate-on", help="videos to evaluate on (e.g. 13-17): validation figures")
+    study.add_argument("--draws", type=int, help="repeat the fit on this many random draws of --pairs pairs")
+    return p
+
+
+# --------------------------------------------------------------------------- ROS arguments
+def _ros_params_to_cli(argv: list[str]) -> list[str]:
+    """Strip ``--ros-args ... [--]`` and turn its ``-p name:=value`` into the equivalent CLI options."""
+    if "--ros-args" not in argv:
+        return list(argv)
+    try:
+        from rclpy.utilities import remove_ros_args
+
+        plain = list(remove_ros_args(args=["calibrate", *argv]))[1:]
+    except Exception:  # rclpy missing or too old: strip by hand
+        plain = _strip_ros_args(argv)
+    extra: list[str] = []
+    from_file: list[str] = []
+    in_ros = False
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--" and in_ros:
+            in_ros = False
+        elif in_ros and arg in ("-p", "--param") and i + 1 < len(argv):
+            name, sep, value = argv[i + 1].partition(":=")
+            i += 1
+            if not sep:
+                raise CalibrationError(f"ROS parameter {argv[i]!r} must look like name:=value")
+            extra += _param_to_option(name.strip(), value.strip())
+        elif in_ros and arg == "--params-file" and i + 1 < len(argv):
+            i += 1
+            from_file += _params_file_options(argv[i])
+        i += 1
+    # argparse keeps the last value: parameter files first, then -p, then plain options win.
+    return from_file + extra + plain
+
+
+def _strip_ros_args(argv: list[str]) -> list[str]:
+    out, in_ros, skip = [], False, False
+    for arg in argv:
+        if skip:
+            skip = False
+            continue
+        if arg == "--ros-args":
+            in_ros = True
+        elif in_ros and arg == "--":
+            in_ros = False
+        elif in_ros:
+            skip = arg in ("-p", "--param", "-r", "--remap", "--params-file", "--log-level", "-e", "--enclave")
+        else:
+            out.append(arg)
+    return out
+
+
+_FLAG_PARAMS = {"no_picture"}
+NODE_NAME = "calibrate"
+
+
+def _params_file_options(path: str) -> list[str]:
+    """Options from the ``calibrate:`` block of a ROS parameter file (other nodes' blocks are ignored)."""
+    from vessel_calib.params import read_params_yaml
+
+    blocks = read_params_yaml(path)
+    options: list[str] = []
+    for node, params in blocks.items():
+        if node.strip("/").split("/")[-1] != NODE_NAME:
+            continue
+        for name, value in params.items():
+            if value is None or value == "" or isinstance(value, dict):
+                continue
+            if isinstance(value, bool):
+                value = "true" if value else "false"
+            options += _param_to_option(str(name), str(value))
+    return options
+
+
+def _param_to_option(name: str, value: str) -> list[str]:
+    key = name.replace(".", "_").replace("-", "_")
+    value = value.strip("'\"")
+    if key in _FLAG_PARAMS:
+        return [f"--{key.replace('_', '-')}"] if value.lower() in ("true", "1", "yes") else []
+    if key == "robust":
+        if value.lower() in ("false", "0", "no", ""):
+            return []
+        return ["--robust"] if value.lower() in ("true", "1", "yes") else ["--robust", value]
+    known = {a.dest for a in build_parser()._actions}
+    if key not in known:
+        raise CalibrationError(f"unknown parameter {name!r}; see calibrate --help for the options (use_ in names)")
+    return [f"--{key.replace('_', '-')}", value]
+
+
+# --------------------------------------------------------------------------- inputs
+def _parse_size(text: str | None, default: tuple[int, int]) -> tuple[int, int]:
+    if not text:
+        return default
+    try:
+        w, h = (int(v) for v in text.lower().replace(",", "x").split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+        return w, h
+    except ValueError:
+        raise CalibrationError(f"--image-size must look like 1280x720, got {text!r}") from None
+
+
+def _parse_center(text: str | None, size: tuple[int, int]) -> tuple[float, float]:
+    if not text:
+        return size[0] / 2.0, size[1] / 2.0
+    try:
+        x, y = (float(v) for v in text.split(","))
+        return x, y
+    except ValueError:
+        raise CalibrationError(f"--center must look like 640,360, got {text!r}") from None
+
+
+def _column(fields_lower: dict[str, str], names) -> str | None:
+    return next((fields_lower[n] for n in names if n in fields_lower), None)
+
+
+def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0):
+    """Labelled pairs from a CSV -> (screen (N,2), gps (N,2), dropped rows without GPS, notes)."""
+    import numpy as np
+
+    from vessel_calib.gps_track import GpsTrack, parse_time
+
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            fields = [f.strip() for f in (reader.fieldnames or [])]
+            rows = [{(k or "").strip(): (v or "").strip() for k, v in r.items()} for r in reader]
+    except OSError as exc:
+        raise DataError(f"cannot read pairs CSV {path}: {exc.strerror or exc}") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DataError(f"{path}: not a readable CSV file ({exc})") from None
+    lower = {f.lower(): f for f in fields}
+    xcol, ycol = _column(lower, _X_NAMES), _column(lower, _Y_NAMES)
+    box = all(c in lower for c in ("x1", "y1", "x2", "y2"))
+    if (xcol is None or ycol is None) and not box:
+        raise DataError(f"{path}: missing screen columns x,y (or box x1,y1,x2,y2); found: {', '.join(fields)}")
+    latcol, loncol = _column(lower, _LAT_NAMES), _column(lower, _LON_NAMES)
+    tcol = _column(lower, _T_NAMES)
+    use_time = latcol is None or loncol is None
+    if use_time and (tcol is None or gps_path is None):
+        raise DataError(
+            f"{path}: missing columns lat,lon (or a time column t plus --gps FIXES); found: {', '.join(fields)}")
+    track = GpsTrack.from_file(gps_path) if use_time else None
+    if track is not None and len(track) < 2:
+        raise DataError(f"{gps_path}: fewer than 2 usable GPS fixes ({track.skipped_rows} rows skipped)")
+
+    def num(i, col):
+        text = rows[i].get(col, "")
+        try:
+            return float(text)
+        except ValueError:
+            raise DataError(f"{path}, row {i + 2}, column '{col}': expected a number, got {text!r}") from None
+
+    screen, gps = [], []
+    dropped = 0
+    for i in range(len(rows)):
+        if xcol is not None and ycol is not None:
+            x, y = num(i, xcol), num(i, ycol)
+        else:
+            x = 0.5 * (num(i, lower["x1"]) + num(i, lower["x2"]))
+            y = 0.5 * (num(i, lower["y1"]) + num(i, lower["y2"]))
+        if use_time:
+            try:
+                t = parse_time(rows[i].get(tcol, ""))
+            except ValueError:
+                raise DataError(f"{path}, row {i + 2}, column '{tcol}': expected epoch seconds or ISO-8601 time, "
+                                f"got {rows[i].get(tcol)!r}") from None
+            lat, lon, ok = track.interpolate(t, max_gap_s=max_gap_s)
+            if not ok:
+                dropped += 1
+                continue
+        else:
+            lat, lon = num(i, latcol), num(i, loncol)
+        screen.append((x, y))
+        gps.append((lat, lon))
+    notes = []
+    if dropped:
+        notes.append(f"{dropped} pair(s) dropped: no GPS fix within {max_gap_s:g} s of their time")
+    if track is not None and track.skipped_rows:
+        notes.append(f"{track.skipped_rows} unusable GPS row(s) skipped in {gps_path}")
+    return np.array(screen, dtype=float).reshape(-1, 2), np.array(gps, dtype=float).reshape(-1, 2), notes
+
+
+def dataset_pairs(ds: Dataset, videos, label_passes: str = "primary"):
+    """(screen, gps) of a data folder's labels: gps_ok=1, box centres, labels of the same frame averaged."""
+    import numpy as np
+
+    if label_passes == "primary":
+        return ds.calibration_pairs(videos)
+    groups: dict[tuple[int, int], list] = {}
+    for lab in ds.labels(videos, primary_only=False):
+        if lab.gps_ok:
+            groups.setdefault((lab.video, lab.frame), []).append(lab)
+    screen = np.array([np.mean([lab.center for lab in g], axis=0) for g in groups.values()]).reshape(-1, 2)
+    gps = np.array([(g[0].lat, g[0].lon) for g in groups.values()]).reshape(-1, 2)
+    return screen, gps
+
+
+def _picture_frame(ds: Dataset | None, videos) -> Path | None:
+    if ds is None:
+        return None
+    for frame in ds.frames(videos) + ds.frames():
+        if frame.path.is_file():
+            return frame.path
+    return None
+
+
+def _fit_options(args) -> FitOptions:
+    """FitOptions from the command line."""
+    from vessel_calib.calibration import PAPER_OPTIONS, FitOptions
+
+    if args.method == "paper":
+        options = PAPER_OPTIONS
+    else:
+        options = FitOptions(loss=args.robust or args.loss, loss_scale_px=args.robust_scale,
+                             far_weight=args.far_weight)
+    if args.k1 is not None:
+        options = replace(options, k1_fixed=args.k1, fit_k1=False)
+    return options.checked()
+
+
+# --------------------------------------------------------------------------- main
+def run(args) -> int:
+    """Do the work for parsed ``args``; raises VesselError for bad input."""
+    import numpy as np
+
+    from vessel_calib import geodesy
+    from vessel_calib.calibration import calibrate, evaluate, study_draws
+    from vessel_calib.dataset import Dataset, default_data_dir, parse_videos, repo_root
+
+    ds = None
+    data_dir = args.data
+    if not data_dir and not args.pairs_csv:
+        found = default_data_dir()
+        if found is None:
+            print("calibrate: nothing to do. Give --data DIR (a folder like ../shared/aitas) or --pairs-csv FILE "
+                  "with --camera-lat/--camera-lon; see calibrate --help.")
+            return 0
+        data_dir = str(found)
+        print(f"calibrate: no input given; calibrating the default data set {found}")
+    if data_dir:
+        ds = Dataset(data_dir)
+
+    size_default = ds.image_size if ds is not None else (1280, 720)
+    image_size = _parse_size(args.image_size, size_default)
+    center = _parse_center(args.center, image_size) if args.center or ds is None else ds.center
+    camera_lat = args.camera_lat if args.camera_lat is not None else (ds.camera_lat if ds is not None else None)
+    camera_lon = args.camera_lon if args.camera_lon is not None else (ds.camera_lon if ds is not None else None)
+    if camera_lat is None or camera_lon is None:
+        raise CalibrationError("give the camera position: --camera-lat and --camera-lon (WGS-84 degrees)")
+    geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (--camera-lat/--camera-lon)")
+
+    notes: list[str] = []
+    videos = None
+    if args.pairs_csv:
+        screen, gps, notes = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s)
+        source = f"pairs {args.pairs_csv}"
+        name = Path(args.pairs_csv).stem
+    else:
+        videos = parse_videos(args.videos or DEFAULT_TRAIN_VIDEOS)
+        screen, gps = dataset_pairs(ds, videos, args.label_passes)
+        source = f"{ds.path} videos {args.videos or DEFAULT_TRAIN_VIDEOS} ({args.label_passes} labels)"
+        name = ds.path.name
+        if len(screen) == 0:
+            raise DataError(
+                f"{ds.path}: no labelled pairs with gps_ok=1 in videos {args.videos or DEFAULT_TRAIN_VIDEOS}")
+    available = len(screen)
+    all_screen, all_gps = screen, gps
+    if args.pairs is not None:
+        if args.pairs < 4:
+            raise CalibrationError(f"--pairs must be at least 4, got {args.pairs}")
+        if args.pairs > len(screen):
+            raise CalibrationError(f"--pairs {args.pairs} but only {len(screen)} pairs are available")
+        idx = np.sort(np.random.default_rng(args.seed).choice(len(screen), size=args.pairs, replace=False))
+        screen, gps = screen[idx], gps[idx]
+        source += f", random draw of {args.pairs} (seed {args.seed})"
+
+    options = _fit_options(args)
+    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options)
+
+    print(f"calibrate: fitted on {source}: {len(screen)} of {available} pairs", flush=True)
+    for note in notes:
+        print(f"  note: {note}")
+    print("\n".join(result.report_lines()), flush=True)
+
+    eval_pairs = None
+    if ds is not None and (args.evaluate_on or args.draws):
+        eval_videos = parse_videos(args.evaluate_on or DEFAULT_EVAL_VIDEOS)
+        eval_pairs = ds.calibration_pairs(eval_videos)
+        if len(eval_pairs[0]) == 0:
+            raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {eval_videos}")
+        spec = args.evaluate_on or DEFAULT_EVAL_VIDEOS
+        print("\n".join(evaluate(result.model, *eval_pairs).lines(f"evaluation on videos {spec} (box centres)")))
+        try:
+            paper = ds.camera_model()
+        except DataError:
+            paper = None
+        if paper is not None:
+            fig = evaluate(paper, *eval_pairs)
+            print("\n".join(fig.lines(f"paper calibration (camera.json, H[0][0] sign corrected) on videos {spec}")))
+            print(f"  heading {paper.heading_deg:.2f} deg (paper: 76.5)")
+        if args.draws:
+            n_pairs = args.pairs or 11
+            study = study_draws(all_screen, all_gps, *eval_pairs, camera_lat, camera_lon, n_pairs, args.draws,
+                                args.seed, image_size, center, options)
+            print("\n".join(study.lines()))
+    elif args.evaluate_on or args.draws:
+        raise CalibrationError("--evaluate-on and --draws need a data folder (--data DIR)")
+
+    out = Path(args.out) if args.out else repo_root() / "out" / "calibration" / f"{name}_camera.yaml"
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise CalibrationError(f"--out must be a .yaml file, got {out}")
+    picture = None if args.no_picture else Path(args.picture) if args.picture else out.with_suffix(".png")
+    header = _yaml_header(result, source, sys.argv)
+    _commit(result, out, picture, header, args.frame or _picture_frame(ds, videos), eval_pairs, source)
+    return 0
+
+
+def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
+    f = result.figures
+    return "\n".join([
+        "Camera calibration written by vessel_calib calibrate (load with --params-file).",
+        f"command: calibrate {' '.join(shlex.quote(a) for a in argv[1:])}",
+        f"fitted on: {source}",
+        f"pairs {f.pairs}: reprojection RMSE {f.reproj_rmse_px:.2f} px, median {f.reproj_median_px:.2f} px; "
+        f"back-projected median {f.backproj_median_m:.2f} m, p80 {f.backproj_p80_m:.2f} m",
+        "H: z_p (x_p, y_p, 1) = H (x_w, y_w, 1), world metres east/north of (camera_lat, camera_lon), z_p < 0 in "
+        "front; K1: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2).",
+        "heading_deg, horizon_* are derived from H (informational).",
+    ])
+
+
+_WRITTEN: list[Path] = []
+_INTERRUPTED: list[bool] = []
+
+
+def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pairs, source) -> None:
+    """Draw the picture into a temporary file, then move it and write the YAML with SIGINT held off.
+
+    Either both files appear complete or neither does (an interrupt before the commit leaves nothing behind).
+    """
+    from vessel_calib.params import write_camera_yaml
+
+    tmp_picture = None
+    try:
+        if picture is not None:
+            from vessel_calib.calibration_plot import render_calibration_picture
+
+            picture.parent.mkdir(parents=True, exist_ok=True)
+            tmp_picture = picture.with_name(f".{picture.stem}.partial.png")
+            render_calibration_picture(tmp_picture, result, frame, title=f"calibration from {source}",
+                                       extra_points=eval_pairs)
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            write_camera_yaml(out, result.model, header=header)
+            _WRITTEN.append(out)
+            if tmp_picture is not None:
+                os.replace(tmp_picture, picture)
+                tmp_picture = None
+                _WRITTEN.append(picture)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+    finally:
+        if tmp_picture is not None and tmp_picture.exists():
+            tmp_picture.unlink()
+    for path in _WRITTEN:
+        print(f"wrote {path}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns the exit status (0 ok or interrupted, 2 bad input)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    _WRITTEN.clear()
+    _INTERRUPTED.clear()
+    try:
+        # Ctrl-C must work even when started with SIGINT ignored (background jobs of a non-interactive shell).
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:  # not the main thread (called from a test's worker thread): leave it
+        pass
+    try:
+        args = build_parser().parse_args(_ros_params_to_cli(argv))
+        if args.draws is not None and args.draws < 1:
+            raise CalibrationError(f"--draws must be at least 1, got {args.draws}")
+        if args.robust_scale is not None and not (args.robust_scale > 0 and math.isfinite(args.robust_scale)):
+            raise CalibrationError(f"--robust-scale must be a positive number of pixels, got {args.robust_scale}")
+        return run(args)
+    except KeyboardInterrupt:
+        _INTERRUPTED.append(True)
+        if _WRITTEN:
+            print(f"interrupted after writing {', '.join(map(str, _WRITTEN))}", file=sys.stderr)
+        else:
+            print("interrupted, nothing written", file=sys.stderr)
+        return 0
+    except VesselError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # argparse --help / errors
+        return int(exc.code or 0) if isinstance(exc.code, int) else 2
+
+
+def _run_as_script() -> None:
+    """``python -m vessel_calib.calibrate_node``: exit with main's status.
+
+    After a KeyboardInterrupt caught inside main, CPython's ``-m`` runner still reports the run as killed by
+    SIGINT (status 130); ``os._exit`` makes the interrupt exit 0 as promised (files are already closed).
+    """
+    status = main()
+    if _INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)
+
+
+if __name__ == "__main__":
+    _run_as_script()
