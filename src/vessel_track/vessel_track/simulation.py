@@ -108,15 +108,16 @@ class WaypointPath:
 class BoxSizeModel:
     """Box size from the homography's z_p: ``w = a_w/|z_p| + b_w``, ``h = a_h/|z_p| + b_h``, full-res px.
 
-    Defaults: least squares on the 140 primary hand boxes of the challenge data with valid GPS (residual
-    standard deviation 19 px in w, 12 px in h). The paper's training boxes (1500/|z_p| + 25, 850/|z_p| + 25 at
+    Defaults: least squares of the relative error on the 144 primary hand boxes of the challenge data with
+    valid GPS (videos 7-17; median relative error 20 % in w and h). Within 150-250 m they give the boxes
+    measured there (w 22-27 px, h 10-13 px). The paper's training boxes (1500/|z_p| + 25, 850/|z_p| + 25 at
     half resolution) are looser on purpose.
     """
 
-    a_w: float = 1856.0
-    b_w: float = 17.0
-    a_h: float = 853.0
-    b_h: float = 11.0
+    a_w: float = 2103.0
+    b_w: float = 2.7
+    a_h: float = 1094.0
+    b_h: float = 0.9
 
     def size(self, abs_zp: np.ndarray) -> np.ndarray:
         """(N, 2) box width and height in px for ``|z_p|``."""
@@ -162,6 +163,8 @@ class SimVessel:
     """Intervals (seconds from the scenario start) when the vessel is hidden from the detector."""
     size_scale: float = 1.0
     """Scale of the box-size model for this vessel (2: a vessel twice as large as the labelled boat)."""
+    score_range: tuple[float, float] | None = None
+    """Detector confidences of this vessel's boxes (uniform); None: ``DetectorModel.vessel_score_range``."""
 
     def __post_init__(self) -> None:
         """Ids must be non-negative: -1 marks clutter in the output."""
@@ -300,7 +303,7 @@ class Scenario:
                 c = tr.screen_xy[k] + rng.normal(0.0, det.center_std_px, 2)
                 wh = np.maximum(tr.box_wh[k] * (1.0 + rng.normal(0.0, det.size_std_frac, 2)), 2.0)
                 boxes.append(np.r_[c - wh / 2, c + wh / 2])
-                scores.append(float(rng.uniform(*det.vessel_score_range)))
+                scores.append(float(rng.uniform(*(v.score_range or det.vessel_score_range))))
                 gt.append(v.vessel_id)
                 static.append(False)
                 tr.detected[k] = True
@@ -355,21 +358,39 @@ def harbour_scenario(frame_interval_s: float = 4.0, duration_s: float = 180.0, s
                      detector: DetectorModel | None = None, camera=None, frame_jitter_s: float = 0.0) -> Scenario:
     """The standard test scene on the challenge camera: three vessels, clutter and the mooring post.
 
-    * vessel 0 (the "vessel of interest"): ~300 m out, crossing the view from left to right at 2 m/s;
+    * vessel 0 (the "vessel of interest"): ~300 m out, crossing the view from left to right at 2 m/s, detected
+      with the highest confidences (0.7-0.95, the others 0.35-0.7) and the longest path, so the paper's
+      trajectory score picks it;
     * vessel 1: a larger boat ~90 m out, from t = 30 s crossing right to left at 1.5 m/s: it passes in front of
       vessel 0 around t = 85 s, hiding it for a few seconds;
     * vessel 2: ~200 m out on a gentle arc, left to right at 1.2 m/s, hidden behind an obstacle (a scheduled
       occlusion) from t = 100 s to t = 110 s.
     """
     vessels = [
-        SimVessel(0, LinePath(bearing_point(300.0, 48.0), heading_deg=167.0, speed_mps=2.0)),
+        SimVessel(0, LinePath(bearing_point(300.0, 48.0), heading_deg=167.0, speed_mps=2.0),
+                  score_range=(0.7, 0.95)),
         SimVessel(1, LinePath(bearing_point(90.0, 112.0), heading_deg=-13.0, speed_mps=1.5), start_s=30.0,
-                  size_scale=1.3),
+                  size_scale=1.3, score_range=(0.35, 0.7)),
         SimVessel(2, ArcPath(center_xy=(0.0, 0.0), radius_m=200.0, start_bearing_deg=70.0, speed_mps=1.2),
-                  occlusions=((100.0, 110.0),)),
+                  occlusions=((100.0, 110.0),), score_range=(0.35, 0.7)),
     ]
     return Scenario(vessels=vessels, camera=camera, duration_s=duration_s, frame_interval_s=frame_interval_s,
                     frame_jitter_s=frame_jitter_s, detector=detector or DetectorModel(), seed=seed)
+
+
+def uturn_scenario(frame_interval_s: float = 4.0, duration_s: float = 120.0, seed: int = 0,
+                   detector: DetectorModel | None = None, camera=None) -> Scenario:
+    """One boat manoeuvring like the challenge boat: ~200 m out at 3 m/s, then a sharp turn back and in.
+
+    No clutter, no other vessel: it measures how well the motion model follows a manoeuvre.
+    """
+    points = (bearing_point(200.0, 60.0), bearing_point(200.0, 85.0), bearing_point(150.0, 70.0))
+    quiet = detector or DetectorModel(clutter_rate=0.0, static_clutter_prob=0.0)
+    return Scenario([SimVessel(0, WaypointPath(points, speed_mps=3.0))], camera=camera, duration_s=duration_s,
+                    frame_interval_s=frame_interval_s, detector=quiet, seed=seed)
+
+
+SCENARIOS = {"harbour": harbour_scenario, "uturn": uturn_scenario}
 
 
 # ---------------------------------------------------------------------------------------------------- scoring
@@ -481,3 +502,89 @@ def score_tracking(result: SimResult, outputs: Sequence[Sequence]) -> TrackingMe
 def _coasting_near(states: Sequence, true_xy: np.ndarray, radius_px: float = 40.0) -> bool:
     return any(int(s.status) == 2 and float(np.hypot(*(np.asarray(s.center) - true_xy))) < radius_px
                for s in states)
+
+
+# ---------------------------------------------------------------------------------------------------- benchmark
+
+
+def _parse_setting(text: str) -> tuple[str, object]:
+    import ast
+
+    if "=" not in text:
+        raise DataError(f"--set needs name=value, got {text!r}")
+    name, value = text.split("=", 1)
+    try:
+        return name.strip(), ast.literal_eval(value.strip())
+    except (ValueError, SyntaxError):
+        return name.strip(), value.strip()
+
+
+def benchmark(intervals: Sequence[float], seeds: int, settings: dict, duration_s: float = 180.0,
+              scenario: str = "harbour") -> list[dict]:
+    """Run the tracker on a scenario of ``SCENARIOS`` for every interval and seed; one row per interval."""
+    import time
+
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+
+    config = TrackerConfig.from_dict(settings)
+    rows = []
+    for interval in intervals:
+        runs = []
+        elapsed = 0.0
+        frames = 0
+        for seed in range(seeds):
+            result = SCENARIOS[scenario](frame_interval_s=interval, duration_s=duration_s, seed=seed).run()
+            tracker = MultiTargetTracker(config)
+            t0 = time.perf_counter()
+            outputs = run_tracker(result, tracker.update)
+            elapsed += time.perf_counter() - t0
+            frames += len(result.frames)
+            runs.append(score_tracking(result, outputs))
+        rows.append({
+            "interval_s": interval,
+            "runs": len(runs),
+            "id_switches": sum(m.id_switches for m in runs),
+            "extra_tracks": sum(max(n - 1, 0) for m in runs for n in m.tracks_per_vessel.values()),
+            "false_confirmed": sum(m.false_confirmed_tracks for m in runs),
+            "confirmed_rmse_px": float(np.mean([m.confirmed_rmse_px for m in runs])),
+            "detection_rmse_px": float(np.mean([m.detection_rmse_px for m in runs])),
+            "coverage": float(np.mean([m.coverage for m in runs])),
+            "ms_per_frame": 1000.0 * elapsed / max(frames, 1),
+        })
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m vessel_track.simulation``: tracker metrics on the simulated harbour scenario."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(prog="python -m vessel_track.simulation", description=(
+        "Track the simulated harbour scenario (crossing, occlusion, clutter, mooring post) and print id switches, "
+        "extra tracks per vessel, confirmed clutter tracks, screen RMSE of confirmed tracks vs raw detections."))
+    parser.add_argument("--interval", type=float, nargs="+", default=[4.0, 1.0, 0.1],
+                        help="seconds between frames (default: 4 1 0.1)")
+    parser.add_argument("--seeds", type=int, default=6, help="runs per interval, seeds 0..N-1 (default 6)")
+    parser.add_argument("--duration", type=float, default=180.0, help="scenario length, s (default 180)")
+    parser.add_argument("--scenario", choices=sorted(SCENARIOS), default="harbour",
+                        help="harbour (3 vessels, crossing, occlusion, clutter) or uturn (one manoeuvring boat)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="TrackerConfig field, e.g. --set process_noise_model=paper (repeatable)")
+    args = parser.parse_args(argv)
+    try:
+        settings = dict(_parse_setting(s) for s in args.set)
+        rows = benchmark(args.interval, args.seeds, settings, args.duration, args.scenario)
+    except DataError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"scenario {args.scenario}, tracker settings: {settings or 'defaults'}")
+    for r in rows:
+        print(f"dt={r['interval_s']:g}s runs={r['runs']} id_switches={r['id_switches']} "
+              f"extra_tracks={r['extra_tracks']} false_confirmed={r['false_confirmed']} "
+              f"confirmed_rmse={r['confirmed_rmse_px']:.2f}px detection_rmse={r['detection_rmse_px']:.2f}px "
+              f"coverage={r['coverage']:.3f} {r['ms_per_frame']:.2f} ms/frame")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

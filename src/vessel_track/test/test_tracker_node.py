@@ -1,0 +1,177 @@
+"""The tracker node in its own process, fed a simulated scenario by this test process.
+
+Checks that the published tracks (ids, statuses, stamps, filtered centres) are those of the ROS-free tracker on
+the same detections, that bad messages are counted on /diagnostics without stopping the node, and that SIGINT
+ends it with status 0. Needs the built workspace (``source ros2_ws/install/setup.bash``); skipped otherwise.
+"""
+
+import math
+import os
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+
+rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: source ros2_ws/install/setup.bash")
+vessel_msgs = pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: build ros2_ws first")
+
+REPO = Path(__file__).resolve().parents[3]
+EXECUTABLE = REPO / "ros2_ws" / "install" / "vessel_track" / "lib" / "vessel_track" / "tracker"
+PARAMS = REPO / "config" / "parts" / "tracker.yaml"
+
+
+def detection_array(stamp, boxes, scores, class_id="boat"):
+    from vessel_calib.node_support import sec_to_stamp
+    from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
+
+    msg = Detection2DArray()
+    msg.header.stamp = sec_to_stamp(stamp)
+    msg.header.frame_id = "camera"
+    for box, score in zip(boxes, scores, strict=True):
+        x1, y1, x2, y2 = (float(v) for v in box)  # ints in float64 fields are serialised as garbage by rclpy
+        det = Detection2D()
+        det.header = msg.header
+        det.bbox.center.position.x = (x1 + x2) / 2.0
+        det.bbox.center.position.y = (y1 + y2) / 2.0
+        det.bbox.size_x = x2 - x1
+        det.bbox.size_y = y2 - y1
+        hyp = ObjectHypothesisWithPose()
+        hyp.hypothesis.class_id = class_id
+        hyp.hypothesis.score = float(score)
+        det.results.append(hyp)
+        msg.detections.append(det)
+    return msg
+
+
+@pytest.fixture
+def ros_graph(tmp_path):
+    if not EXECUTABLE.exists():
+        pytest.skip(f"{EXECUTABLE} is missing: build the workspace (colcon build --symlink-install)")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    log = open(tmp_path / "tracker.log", "w")
+    process = subprocess.Popen([str(EXECUTABLE), "--ros-args", "--params-file", str(PARAMS)], env=env,
+                               stdout=log, stderr=subprocess.STDOUT)
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("tracker_test_driver", context=context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        yield process, node, executor, tmp_path / "tracker.log"
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        log.close()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def spin_until(executor, predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        executor.spin_once(timeout_sec=0.05)
+    return predicate()
+
+
+def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from vessel_calib.node_support import reliable_qos, stamp_to_sec
+    from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
+    from vessel_track.simulation import harbour_scenario
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+
+    process, node, executor, log_path = ros_graph
+    received: list = []
+    diagnostics: list = []
+    publisher = node.create_publisher(Detection2DArray, "/vessel/detections", reliable_qos(10))
+    node.create_subscription(VesselTrackArray, "/vessel/tracks/screen", received.append, reliable_qos(10))
+    node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
+    matched = spin_until(executor, lambda: publisher.get_subscription_count() >= 1
+                         and node.count_publishers("/vessel/tracks/screen") >= 1, 30.0)
+    assert matched, f"tracker node did not come up:\n{log_path.read_text()}"
+
+    def send(stamp, boxes, scores):
+        before = len(received)
+        publisher.publish(detection_array(stamp, boxes, scores))
+        assert spin_until(executor, lambda: len(received) > before, 10.0), \
+            f"no tracks for stamp {stamp}:\n{log_path.read_text()}"
+        return received[-1]
+
+    result = harbour_scenario(frame_interval_s=4.0, duration_s=100.0, seed=0).run()
+    reference = MultiTargetTracker(TrackerConfig())
+    for frame in result.frames:
+        out = send(frame.stamp, frame.boxes_xyxy, frame.scores)
+        expected = reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
+        assert stamp_to_sec(out.header.stamp) == pytest.approx(frame.stamp, abs=1e-6)
+        assert out.header.frame_id == "camera"
+        assert [(t.id, t.status) for t in out.tracks] == [(s.track_id, int(s.status)) for s in expected]
+        for t, s in zip(out.tracks, expected, strict=True):
+            assert stamp_to_sec(t.header.stamp) == pytest.approx(frame.stamp, abs=1e-6)
+            np.testing.assert_allclose([t.bbox.center.position.x, t.bbox.center.position.y], s.center, atol=1e-6)
+            np.testing.assert_allclose([t.bbox.size_x, t.bbox.size_y], s.size, atol=1e-6)
+            np.testing.assert_allclose(t.screen_covariance, s.center_cov.ravel(), rtol=1e-9)
+            assert stamp_to_sec(t.last_seen) == pytest.approx(s.last_seen, abs=1e-6)
+            assert t.detection_count == s.detection_count and not t.is_target and not t.has_world
+            assert math.isnan(t.position.x) and math.isnan(t.latitude)
+    confirmed = {t.id for t in out.tracks if t.status in (VesselTrack.STATUS_CONFIRMED, VesselTrack.STATUS_COASTING)}
+    assert len(confirmed) >= 3
+
+    # Bad input: NaN and negative-size boxes, an empty frame, then stamps going back (a replay restarted).
+    t_last = result.frames[-1].stamp
+    bad = send(t_last + 1.0, [[np.nan, 400, 420, 430], [500, 400, 480, 430], [150, 600, 180, 616]], [0.9, 0.9, 0.9])
+    assert sum(1 for t in bad.tracks if t.status == VesselTrack.STATUS_TENTATIVE and t.detection_count == 1) == 1
+    empty = send(t_last + 2.0, [], [])
+    assert stamp_to_sec(empty.header.stamp) == pytest.approx(t_last + 2.0)
+    assert all(t.status != VesselTrack.STATUS_CONFIRMED for t in empty.tracks)
+    restarted = send(result.frames[0].stamp, result.frames[0].boxes_xyxy, result.frames[0].scores)
+    lost = [t for t in restarted.tracks if t.status == VesselTrack.STATUS_LOST]
+    assert {t.id for t in lost} >= confirmed
+    assert all(t.status in (VesselTrack.STATUS_LOST, VesselTrack.STATUS_TENTATIVE) for t in restarted.tracks)
+    # A frame slightly out of order is dropped without output: the next message is the next valid frame's.
+    publisher.publish(detection_array(result.frames[0].stamp - 0.5, [], []))
+    following = send(result.frames[1].stamp, result.frames[1].boxes_xyxy, result.frames[1].scores)
+    assert stamp_to_sec(following.header.stamp) == pytest.approx(result.frames[1].stamp, abs=1e-6)
+    assert len(received) == len(result.frames) + 4
+
+    def counts():
+        for array in reversed(diagnostics):
+            for status in array.status:
+                if status.name == "tracker":
+                    return {kv.key: kv.value for kv in status.values}
+        return {}
+
+    assert spin_until(executor, lambda: counts().get("count.resets") == "1"
+                      and counts().get("count.detections_invalid") == "2"
+                      and counts().get("count.out_of_order_frames") == "1", 10.0), counts()
+    assert process.poll() is None, "the tracker node died on bad input"
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=15) == 0
+    log = log_path.read_text()
+    assert log.count("counted as 'detections_invalid'") == 1 and "Traceback" not in log
+
+
+def test_every_tracker_config_field_is_a_described_parameter():
+    from dataclasses import fields
+
+    from vessel_track.tracker import TrackerConfig
+    from vessel_track.tracker_node import TRACKER_PARAMETERS
+
+    assert set(TRACKER_PARAMETERS) == {f.name for f in fields(TrackerConfig)}
+    assert all(description.strip() for description, _ in TRACKER_PARAMETERS.values())

@@ -1,0 +1,254 @@
+"""``tracker`` node: per-image detections in, one screen-space track per vessel out.
+
+Subscribes ``/vessel/detections`` (``vessel_msgs/Detection2DArray``, reliable), runs
+``vessel_track.tracker.MultiTargetTracker`` and publishes ``/vessel/tracks/screen``
+(``vessel_msgs/VesselTrackArray``, reliable) with the detections' header, so the image stamp travels on. Every
+live track is published (TENTATIVE, CONFIRMED or COASTING) and an ended one once as LOST: the box centre is the
+Kalman-filtered centre, its size the latest associated box, ``last_seen`` the stamp of the latest associated
+detection (equal to the header stamp when the track was updated by this image). World fields are NaN and
+``has_world`` false; ``is_target`` is false (the fuser decides).
+
+Bad input never stops the node: NaN or non-positive boxes are dropped, stamps going back by
+``backwards_reset_s`` reset the tracker (a replay restarted), a long gap times every track out; each kind is
+logged once and counted on ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from vessel_calib.errors import DataError, VesselError
+from vessel_calib.node_support import (
+    NodeHealth,
+    declare_parameter,
+    reliable_qos,
+    run_node,
+    sec_to_stamp,
+    stamp_to_sec,
+)
+from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
+from vessel_track.tracker import (
+    ASSOCIATION_METHODS,
+    DISTANCE_METRICS,
+    PROCESS_NOISE_MODELS,
+    MultiTargetTracker,
+    TrackerConfig,
+    TrackerCounters,
+    TrackState,
+)
+
+#: TrackerConfig field -> (ROS parameter description, range). Every field is a parameter of the node.
+TRACKER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
+    "measurement_std_px": ("Std of a detection's box centre, px (paper: 10 px at half resolution).", (1e-3, 1e4)),
+    "measurement_std_size_frac": ("Extra centre std as a fraction of the box size (w for x, h for y).", (0.0, 10.0)),
+    "process_noise_model": (f"Kalman process noise: {', '.join(PROCESS_NOISE_MODELS)} (paper = diag(0, q dt^2, "
+                            "0, q dt^2); continuous_wna is the same for any frame rate).", None),
+    "process_noise": ("q for x: px^2/s^3 (continuous_wna) or px^2/s^4 (discrete_wna, paper).", (0.0, 1e6)),
+    "process_noise_y": ("q for y, same units as process_noise (vessels near the horizon move little in y).",
+                        (0.0, 1e6)),
+    "init_velocity_std_x_px_s": ("Prior std of a new track's horizontal velocity, px/s.", (0.0, 1e4)),
+    "init_velocity_std_y_px_s": ("Prior std of a new track's vertical velocity, px/s.", (0.0, 1e4)),
+    "association": (f"{' or '.join(ASSOCIATION_METHODS)}: optimal (Hungarian) or nearest-first (paper).", None),
+    "distance_metric": (f"Association cost: {' or '.join(DISTANCE_METRICS)}.", None),
+    "gate_px": ("Detections this close to a prediction are always admissible, px (paper: 80 at half res).",
+                (1e-3, 1e5)),
+    "gate_sigmas": ("Beyond gate_px, admissible up to this Mahalanobis distance of the prediction.", (1e-3, 100.0)),
+    "max_gate_px": ("No detection farther than this from a prediction is admissible, px.", (1e-3, 1e5)),
+    "clutter_density_per_mpx": ("Expected false detections per frame per megapixel: a detection must be likelier "
+                                "from the track than from clutter (0 disables).", (0.0, 1e6)),
+    "size_weight": ("Weight of the box-size similarity in the association cost (0 disables).", (0.0, 1e3)),
+    "size_log_std": ("Expected change of ln(width), ln(height) between associated boxes.", (1e-3, 10.0)),
+    "max_size_ratio": ("Boxes differing from the track's size by more than this factor are not associated "
+                       "(0 disables).", (0.0, 1e3)),
+    "min_hits": ("Detections before a track is CONFIRMED.", None),
+    "max_coast_s": ("A track not updated for longer than this is LOST (paper: 10 frames), s.", (1e-3, 1e6)),
+    "tentative_max_coast_s": ("A TENTATIVE track not updated for longer than this is dropped, s.", (1e-3, 1e6)),
+    "tentative_max_misses": ("A TENTATIVE track missing more consecutive frames than this is dropped.", None),
+    "max_tracks": ("At most this many live tracks; more detections are dropped and counted.", None),
+    "duplicate_iou": ("An unassociated box overlapping an associated one or a track by more IoU than this is a "
+                      "duplicate and starts no track (0 disables).", (0.0, 1.0)),
+    "min_score": ("Detections scoring below this are ignored.", (0.0, 1.0)),
+    "min_box_size_px": ("Boxes narrower or lower than this are invalid, px.", (1e-6, 1e4)),
+    "backwards_reset_s": ("Stamps going back this much or more reset the tracker (replay restarted); smaller "
+                          "steps back drop the frame, s.", (0.0, 1e9)),
+    "history_length": ("Updates kept per track (stamps, boxes, confidences).", None),
+    "id_prefix": ("Track ids are <id_prefix><n>.", None),
+}
+
+_INT_RANGES = {"min_hits": (1, 1000), "tentative_max_misses": (0, 1000), "max_tracks": (1, 100000),
+               "history_length": (1, 10_000_000)}
+
+PROBLEMS = {
+    "detections_invalid": "detections with NaN/inf coordinates, a NaN score or a width/height below "
+                          "min_box_size_px (negative sizes) were dropped",
+    "resets": "detection stamps went back by backwards_reset_s or more (replay restarted?): the tracker was reset "
+              "and every track reported LOST",
+    "out_of_order_frames": "a detection array stamped slightly before the previous one was dropped",
+    "gaps": "detections arrived more than max_coast_s after the previous ones: every track timed out",
+    "capacity_drops": "max_tracks live tracks reached: detections that would start more were dropped",
+}
+
+
+def declare_tracker_config(node: Node) -> TrackerConfig:
+    """Declare every ``TrackerConfig`` field as a parameter (with descriptor and range) and build the config."""
+    defaults = TrackerConfig()
+    values = {}
+    for f in fields(TrackerConfig):
+        description, float_range = TRACKER_PARAMETERS[f.name]
+        default = getattr(defaults, f.name)
+        try:
+            if isinstance(default, float):
+                values[f.name] = declare_parameter(node, f.name, default, description, float_range=float_range)
+            elif isinstance(default, int):
+                values[f.name] = declare_parameter(node, f.name, default, description,
+                                                   int_range=_INT_RANGES[f.name])
+            else:
+                values[f.name] = declare_parameter(node, f.name, default, description)
+        except Exception as error:  # rclpy's type/range exceptions: a configuration problem, reported in one line
+            raise DataError(f"tracker parameter {f.name}: {error} (default {default!r}); fix the parameter file") \
+                from None
+    return TrackerConfig.from_dict(values)
+
+
+def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 4) xyxy boxes and (N,) scores of the detections whose class is accepted.
+
+    The score of a detection is its best hypothesis among the accepted classes; a detection without
+    hypotheses has score 1 and is accepted only when no class filter is set.
+    """
+    boxes = []
+    scores = []
+    for det in msg.detections:
+        accepted = [float(r.hypothesis.score) for r in det.results
+                    if classes is None or r.hypothesis.class_id in classes]
+        if accepted:
+            score = max(accepted) if all(math.isfinite(s) for s in accepted) else math.nan  # NaN: counted invalid
+        elif not det.results and classes is None:
+            score = 1.0
+        else:
+            continue
+        cx, cy = det.bbox.center.position.x, det.bbox.center.position.y
+        w, h = det.bbox.size_x, det.bbox.size_y
+        boxes.append((cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0))
+        scores.append(score)
+    return np.array(boxes, dtype=float).reshape(-1, 4), np.array(scores, dtype=float)
+
+
+def track_to_msg(state: TrackState, header) -> VesselTrack:
+    """A ``VesselTrack`` of one tracker state: screen fields filled, world fields NaN, not the target."""
+    msg = VesselTrack()
+    msg.header = header
+    msg.id = state.track_id
+    msg.is_target = False
+    msg.score = math.nan
+    msg.confidence = float(state.confidence)
+    msg.status = int(state.status)
+    msg.detection_count = int(state.detection_count)
+    msg.first_seen = sec_to_stamp(state.first_seen)
+    msg.last_seen = sec_to_stamp(state.last_seen)
+    msg.bbox.center.position.x = float(state.center[0])
+    msg.bbox.center.position.y = float(state.center[1])
+    msg.bbox.center.theta = 0.0
+    msg.bbox.size_x = float(state.size[0])
+    msg.bbox.size_y = float(state.size[1])
+    msg.screen_velocity.x = float(state.velocity[0])
+    msg.screen_velocity.y = float(state.velocity[1])
+    msg.screen_covariance = [float(v) for v in np.asarray(state.center_cov, dtype=float).ravel()]
+    msg.has_world = False
+    nan = math.nan
+    msg.position.x = msg.position.y = msg.position.z = nan
+    msg.velocity.x = msg.velocity.y = msg.velocity.z = nan
+    msg.position_covariance = [nan] * 4
+    msg.velocity_covariance = [nan] * 4
+    msg.latitude = msg.longitude = msg.distance_m = msg.bearing_deg = msg.expected_error_m = nan
+    return msg
+
+
+class TrackerNode(Node):
+    """Thin ROS wrapper around ``MultiTargetTracker``; see the module docstring."""
+
+    def __init__(self):
+        super().__init__("tracker")
+        config = declare_tracker_config(self)
+        input_topic = declare_parameter(self, "input_topic", "/vessel/detections",
+                                        "Detections of each image (vessel_msgs/Detection2DArray).")
+        output_topic = declare_parameter(self, "output_topic", "/vessel/tracks/screen",
+                                         "Screen-space tracks of each image (vessel_msgs/VesselTrackArray).")
+        depth = declare_parameter(self, "qos_depth", 10, "Queue depth of the reliable input and output.",
+                                  int_range=(1, 1000))
+        classes = declare_parameter(self, "classes", Parameter.Type.STRING_ARRAY,
+                                    "Class ids (hypothesis.class_id) to track, e.g. ['boat']; unset: every class "
+                                    "the detector publishes.")
+        self.classes = frozenset(classes) if classes else None
+        self.tracker = MultiTargetTracker(config)
+        self.health = NodeHealth(self)
+        self._reported = TrackerCounters()
+        self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
+        self.subscription = self.create_subscription(Detection2DArray, input_topic, self.on_detections,
+                                                     reliable_qos(depth))
+        self.get_logger().info(
+            f"tracker: {input_topic} -> {output_topic}; gate {config.gate_px:g} px/{config.gate_sigmas:g} sigma, "
+            f"lost after {config.max_coast_s:g} s, {config.process_noise_model} q={config.process_noise:g}, "
+            f"classes {sorted(self.classes) if self.classes else 'all'}")
+
+    def on_detections(self, msg: Detection2DArray) -> None:
+        """Track one image's detections and publish every track with the image's header."""
+        stamp = stamp_to_sec(msg.header.stamp)
+        if stamp == 0.0:
+            self.health.problem("zero_stamp", "a detection array has a zero header stamp: set the image stamp")
+        boxes, scores = detections_to_arrays(msg, self.classes)
+        dropped_before = self.tracker.counters.out_of_order_frames
+        try:
+            states = self.tracker.update(stamp, boxes, scores)
+        except VesselError as error:
+            self.health.problem("bad_message", f"detection array dropped: {error}")
+            return
+        if self.tracker.counters.out_of_order_frames != dropped_before:
+            self._report(len(boxes), states)  # nothing published: downstream never sees time go back a little
+            return
+        out = VesselTrackArray()
+        out.header = msg.header
+        out.tracks = [track_to_msg(s, msg.header) for s in states]
+        self.publisher.publish(out)
+        self._report(len(boxes), states)
+
+    def _report(self, n_boxes: int, states: list[TrackState]) -> None:
+        counters = self.tracker.counters
+        for kind, message in PROBLEMS.items():
+            new = getattr(counters, kind) - getattr(self._reported, kind)
+            for _ in range(max(new, 0)):
+                self.health.problem(kind, message)
+        self._reported = TrackerCounters(**counters.as_dict())
+        self.health.count("frames")
+        self.health.set_value("detections_in", counters.detections_in)
+        self.health.set_value("tracks_created", counters.tracks_created)
+        self.health.set_value("tracks_confirmed", counters.tracks_confirmed)
+        self.health.set_value("live_tracks", len(self.tracker.track_ids))
+        self.health.set_value("last_boxes", n_boxes)
+        self.health.set_value("last_stamp", float(self.tracker.last_stamp or 0.0))
+
+
+def main(args=None) -> None:
+    """Console entry point: ``ros2 run vessel_track tracker --ros-args --params-file config/aitas.yaml``."""
+    import sys
+
+    try:
+        from vessel_track.node_params import params_file_problem
+    except ImportError:  # pragma: no cover - the fusion engineer's helper; the node works without it
+        params_file_problem = None
+    argv = list(sys.argv if args is None else args)
+    if params_file_problem is not None:
+        problem = params_file_problem(argv)
+        if problem is not None:
+            print(f"error: {problem}", file=sys.stderr)
+            sys.exit(2)
+    sys.exit(run_node(TrackerNode, argv))
+
+
+if __name__ == "__main__":
+    main()
