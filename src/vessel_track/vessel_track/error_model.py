@@ -197,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
         parts = [read_scores_csv(p) for p in args.scores]
         d = np.concatenate([p[0] for p in parts])
         e = np.concatenate([p[1] for p in parts])
-        source = "fit on " + ", ".join(p.name if p.parent == Path() else str(p) for p in args.scores)
+        source = "fit on " + ", ".join(f"{p.parent.name}/{p.name}" if p.parent.name else p.name for p in args.scores)
         model = fit_error_model(d, e, args.kind, args.quantile, source=source)
         update_params_file(args.out, args.node, "error_model", model.to_params())
     except VesselError as error:

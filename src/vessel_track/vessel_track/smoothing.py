@@ -15,8 +15,9 @@ density ``accel_psd`` (m^2/s^3), so the filter behaves the same at 30 ms and at 
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -62,6 +63,9 @@ class MotionConfig:
     gate_chi2: squared Mahalanobis distance beyond which a measurement is rejected as an outlier.
     max_rejections: consecutive rejections after which the filter restarts from the measurement.
     max_gap_s: a gap between stamps longer than this restarts the filter (a replay restarted, minutes lost).
+    manoeuvre_factor: a measurement outside the gate is tried again with the process noise of this step
+        multiplied by this factor (a vessel turning or accelerating hard, Bar-Shalom's adjustable process noise);
+        only if it is still outside is it an outlier. 1 disables it.
     """
 
     accel_psd: float = 0.3
@@ -70,13 +74,16 @@ class MotionConfig:
     gate_chi2: float = CHI2_2DOF_999
     max_rejections: int = 3
     max_gap_s: float = 30.0
+    manoeuvre_factor: float = 25.0
 
     def __post_init__(self) -> None:
         """Reject values the filter cannot run with."""
-        for name in ("accel_psd", "initial_speed_std", "max_speed", "gate_chi2", "max_gap_s"):
+        for name in ("accel_psd", "initial_speed_std", "max_speed", "gate_chi2", "max_gap_s", "manoeuvre_factor"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise DataError(f"motion model: {name} must be a positive number, got {value!r}")
+        if self.manoeuvre_factor < 1:
+            raise DataError(f"motion model: manoeuvre_factor must be >= 1, got {self.manoeuvre_factor!r}")
         if self.max_rejections < 1:
             raise DataError(f"motion model: max_rejections must be at least 1, got {self.max_rejections!r}")
 
@@ -134,7 +141,7 @@ class WorldKalmanFilter:
         self.stamp: float | None = None
         self.rejections_in_row = 0
         self.events: dict[str, int] = {"restart_backwards": 0, "restart_gap": 0, "rejected": 0,
-                                       "restart_rejections": 0, "invalid_measurement": 0}
+                                       "restart_rejections": 0, "invalid_measurement": 0, "manoeuvre": 0}
 
     @property
     def initialised(self) -> bool:
@@ -175,12 +182,12 @@ class WorldKalmanFilter:
             return False
         return True
 
-    def _predict_in_place(self, stamp: float) -> None:
+    def _predict_in_place(self, stamp: float, noise_scale: float = 1.0) -> None:
         dt = stamp - self.stamp
         if dt > 0:
             F = cv_transition(dt)
             self.state = F @ self.state
-            self.covariance = F @ self.covariance @ F.T + cv_process_noise(dt, self.config.accel_psd)
+            self.covariance = F @ self.covariance @ F.T + cv_process_noise(dt, self.config.accel_psd * noise_scale)
             self._clip_speed()
         self.stamp = stamp
 
@@ -208,10 +215,22 @@ class WorldKalmanFilter:
             return self.predict(stamp) if self.initialised else None
         if not self._check_time(stamp):
             return self._start(stamp, z, R)
+        before = (self.state.copy(), self.covariance.copy(), self.stamp)
         self._predict_in_place(stamp)
         innovation = z - _H @ self.state
         S = _H @ self.covariance @ _H.T + R
         d2 = float(innovation @ np.linalg.solve(S, innovation))
+        if d2 > self.config.gate_chi2 and self.config.manoeuvre_factor > 1:
+            predicted = (self.state, self.covariance, self.stamp)
+            self.state, self.covariance, self.stamp = before
+            self._predict_in_place(stamp, self.config.manoeuvre_factor)
+            innovation = z - _H @ self.state
+            S = _H @ self.covariance @ _H.T + R
+            d2 = float(innovation @ np.linalg.solve(S, innovation))
+            if d2 <= self.config.gate_chi2:
+                self.events["manoeuvre"] += 1
+            else:
+                self.state, self.covariance, self.stamp = predicted
         if d2 > self.config.gate_chi2:
             self.events["rejected"] += 1
             self.rejections_in_row += 1
@@ -238,6 +257,8 @@ class SmoothedTrajectory:
     covariances: np.ndarray   # (N, 4, 4)
     used: np.ndarray          # (N,) bool: measurement used in the final pass (False: masked or none)
     iterations: int           # passes run
+    log_likelihood: float = math.nan   # of the used measurements under the model (innovations), for model choice
+    accel_psd: float = math.nan        # process noise the pass ran with
 
     @property
     def positions(self) -> np.ndarray:
@@ -285,18 +306,27 @@ def rts_smooth(stamps, z, R, config: MotionConfig | None = None, mask=None) -> S
     # Before the first measurement the prior is started at the first measurement's time and run backwards
     # by the smoother; filtering starts at `first`.
     t_prev = stamps[first]
+    log_likelihood = 0.0
     for i in range(first, n):
         if i > first:
             dt = stamps[i] - t_prev
             F = cv_transition(dt)
-            x = F @ x
-            P = F @ P @ F.T + cv_process_noise(dt, config.accel_psd)
+            x_prior = F @ x
+            P_prior = F @ P @ F.T + cv_process_noise(dt, config.accel_psd)
+            if usable[i] and config.manoeuvre_factor > 1:
+                innovation = z[i] - _H @ x_prior
+                if innovation @ np.linalg.solve(_H @ P_prior @ _H.T + R[i], innovation) > config.gate_chi2:
+                    P_prior = F @ P @ F.T + cv_process_noise(dt, config.accel_psd * config.manoeuvre_factor)
+            x, P = x_prior, P_prior
             t_prev = stamps[i]
         x_pred[i], P_pred[i] = x, P
         if usable[i] and i > first:
             S = _H @ P @ _H.T + R[i]
+            innovation = z[i] - _H @ x
+            log_likelihood -= 0.5 * (float(innovation @ np.linalg.solve(S, innovation))
+                                     + math.log(float(np.linalg.det(S))) + 2.0 * math.log(2.0 * math.pi))
             K = P @ _H.T @ np.linalg.inv(S)
-            x = x + K @ (z[i] - _H @ x)
+            x = x + K @ innovation
             I_KH = np.eye(4) - K @ _H
             P = I_KH @ P @ I_KH.T + K @ R[i] @ K.T
         x_filt[i], P_filt[i] = x, P
@@ -312,7 +342,28 @@ def rts_smooth(stamps, z, R, config: MotionConfig | None = None, mask=None) -> S
         F = cv_transition(dt)
         xs[i] = F @ xs[i + 1]
         Ps[i] = F @ Ps[i + 1] @ F.T + cv_process_noise(dt, config.accel_psd)
-    return SmoothedTrajectory(stamps, xs, Ps, usable, 1)
+    return SmoothedTrajectory(stamps, xs, Ps, usable, 1, log_likelihood, config.accel_psd)
+
+
+def most_likely_noise(stamps, z, R, config: MotionConfig | None = None,
+                      accel_candidates=(0.1, 0.3, 1.0, 3.0, 10.0), r_scale_candidates=(1.0,),
+                      mask=None) -> tuple[float, float]:
+    """(process noise, measurement-covariance scale) under which a recorded trajectory is most likely.
+
+    Empirical Bayes over a grid, on the trajectory's own measurements (innovation likelihood), no truth
+    involved: vessels differ (a ferry on a straight line, a launch doing loops) and so does the measurement
+    noise of a given camera and detector from the training average. Falls back to (``config.accel_psd``, 1)
+    with fewer than 4 usable measurements.
+    """
+    config = config or MotionConfig()
+    z = np.asarray(z, dtype=float)
+    R = np.asarray(R, dtype=float)
+    usable = np.all(np.isfinite(z), axis=1) if mask is None else np.asarray(mask, bool) & np.all(np.isfinite(z), 1)
+    if usable.sum() < 4:
+        return config.accel_psd, 1.0
+    scores = {(q, k): rts_smooth(stamps, z, R * k, replace(config, accel_psd=q), mask).log_likelihood
+              for q in accel_candidates for k in r_scale_candidates}
+    return max(scores, key=lambda key: scores[key])
 
 
 def smooth_with_outlier_masking(

@@ -159,6 +159,11 @@ def track_to_msg(state: TrackState, header) -> VesselTrack:
     msg.screen_velocity.x = float(state.velocity[0])
     msg.screen_velocity.y = float(state.velocity[1])
     msg.screen_covariance = [float(v) for v in np.asarray(state.center_cov, dtype=float).ravel()]
+    if state.measured_center is not None:
+        msg.detection_bbox.center.position.x = float(state.measured_center[0])
+        msg.detection_bbox.center.position.y = float(state.measured_center[1])
+        msg.detection_bbox.size_x = float(state.measured_size[0])
+        msg.detection_bbox.size_y = float(state.measured_size[1])
     msg.has_world = False
     nan = math.nan
     msg.position.x = msg.position.y = msg.position.z = nan

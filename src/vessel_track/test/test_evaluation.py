@@ -1,0 +1,140 @@
+"""Scoring like the paper on a generated miniature dataset, plus a check on the real one when present."""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from vessel_calib import geodesy
+from vessel_calib.errors import DataError
+from vessel_track.evaluation import main, metrics, read_predictions
+from vessel_track.simulation import CHALLENGE_CAMERA_LATLON, CHALLENGE_H, CHALLENGE_K1
+
+LAT0, LON0 = CHALLENGE_CAMERA_LATLON
+DAY = 1601424000.0  # 2020-09-30 00:00 UTC
+
+
+def _iso(epoch):
+    from datetime import UTC, datetime
+
+    return datetime.fromtimestamp(epoch, UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def make_dataset(root, gap=None):
+    """Two videos of 10 frames 4 s apart; the vessel moves 2 m/s east-north-east 150-230 m out."""
+    root.mkdir(parents=True, exist_ok=True)
+    camera = {"camera_lat": LAT0, "camera_lon": LON0, "image_width": 1280, "image_height": 720,
+              "distortion_centre": [640, 360],
+              "calibrations": {"paper_corrected_H00_negative": {"H": [list(r) for r in CHALLENGE_H],
+                                                                "K1": CHALLENGE_K1}}}
+    (root / "camera.json").write_text(json.dumps(camera))
+    frames = ["video,frame,utc,has_label,file"]
+    starts = {13: DAY + 71752.0, 14: DAY + 71900.0}
+    for video, t0 in starts.items():
+        for k in range(10):
+            frames.append(f"{video},{100 * k},{_iso(t0 + 4.0 * k)},0,frames/{video}/{100 * k:05d}.jpg")
+    (root / "frames.csv").write_text("\n".join(frames) + "\n")
+    fixes = ["fix_index,utc_s,t_spread_s,lat,lon"]
+    i = 0
+    for video, t0 in starts.items():
+        for s in range(-2, 44):
+            t = t0 + s
+            if gap is not None and gap[0] <= t - t0 <= gap[1] and video == 13:
+                continue
+            x, y = 120.0 + 2.0 * s, 40.0 + 0.5 * s
+            lat, lon = geodesy.local_to_gps(x, y, LAT0, LON0)
+            fixes.append(f"{i},{int(t - DAY)},{t - DAY:.3f},{lat:.9f},{lon:.9f}")
+            i += 1
+    (root / "target_gps_fixes.csv").write_text("\n".join(fixes) + "\n")
+    return starts
+
+
+def truth_xy(t, t0):
+    s = t - t0
+    return 120.0 + 2.0 * s, 40.0 + 0.5 * s
+
+
+def write_predictions(path, starts, offset_m=5.0, skip=()):
+    lines = ["video,t_utc_s,lat,lon"]
+    for video, t0 in starts.items():
+        for k in range(10):
+            if (video, k) in skip:
+                continue
+            t = t0 + 4.0 * k
+            x, y = truth_xy(t, t0)
+            lat, lon = geodesy.local_to_gps(x + offset_m, y, LAT0, LON0)
+            lines.append(f"{video},{t - DAY:.3f},{lat:.9f},{lon:.9f}")
+    lines.append("13,not-a-number,1,2")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_metrics_match_the_definitions():
+    e = np.array([1.0, 2.0, 10.0, 4.0])
+    d = np.array([100.0, 50.0, 400.0, 200.0])
+    m = metrics(e, d)
+    assert m["m_per_100m"] == pytest.approx(100 * np.sum(e * d) / np.sum(d * d))
+    assert m["median_m"] == pytest.approx(3.0)
+    assert m["p80_pct"] == pytest.approx(np.percentile(100 * e / d, 80))
+    assert metrics([], [])["n"] == 0
+
+
+def test_scoring_a_known_offset(tmp_path, capsys):
+    data = tmp_path / "data"
+    starts = make_dataset(data, gap=(14.5, 21.5))  # no GPS between 14.5 s and 21.5 s of video 13
+    predictions = tmp_path / "predictions.csv"
+    write_predictions(predictions, starts, offset_m=5.0, skip={(14, 3), (14, 4)})
+    out = tmp_path / "eval"
+    assert main([str(predictions), "--data", str(data), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "m/100m" in printed and "video 13" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    overall = summary["overall"]
+    assert overall["median_m"] == pytest.approx(5.0, abs=0.01)
+    assert overall["p80_m"] == pytest.approx(5.0, abs=0.01)
+    # Frames at 16 s and 20 s of video 13 fall in the GPS gap: not scored and not in view.
+    v13 = summary["per_video"]["13"]
+    assert v13["n"] == 8 and v13["n_no_truth"] == 2 and v13["frames_in_view"] == 8
+    v14 = summary["per_video"]["14"]
+    assert v14["frames_in_view"] == 10 and v14["frames_covered"] == 8 and v14["coverage"] == pytest.approx(0.8)
+    with open(out / "scores.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    d = np.array([float(r["distance_m"]) for r in rows if r["error_m"]])
+    assert overall["m_per_100m"] == pytest.approx(100 * 5.0 * d.sum() / (d * d).sum(), rel=1e-3)
+    assert summary["settings"]["skipped_rows"] == 1
+    assert "13-16" not in summary["splits"]
+    for name in ("error_vs_distance.png", "error_hist.png", "map_video13.png", "map_video14.png"):
+        assert (out / name).stat().st_size > 1000
+
+
+def test_bad_input_gives_one_line_and_status_2(tmp_path, capsys):
+    data = tmp_path / "data"
+    make_dataset(data)
+    assert main([str(tmp_path / "nope.csv"), "--data", str(data)]) == 2
+    assert capsys.readouterr().err.startswith("error: ")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("video,time,lat,lon\n")
+    assert main([str(bad), "--data", str(data)]) == 2
+    assert "t_utc_s" in capsys.readouterr().err
+    with pytest.raises(DataError):
+        read_predictions(tmp_path / "nope.csv")
+
+
+@pytest.mark.data
+def test_gps_itself_scores_zero_on_the_shared_data(tmp_path):
+    from vessel_calib.dataset import Dataset, default_data_dir
+
+    root = default_data_dir()
+    if root is None:
+        pytest.skip("../shared/aitas is absent (set VESSEL_DATA to run this test)")
+    dataset = Dataset(root)
+    track = dataset.gps_track()
+    frames = dataset.frames([15])
+    stamps = np.array([f.stamp for f in frames])
+    lat, lon, valid = track.interpolate(stamps, max_gap_s=3.0)
+    lines = ["video,t_utc_s,lat,lon"] + [f"15,{t % 86400:.3f},{a:.9f},{b:.9f}"
+                                          for t, a, b, v in zip(stamps, lat, lon, valid, strict=True) if v]
+    (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
+    assert main([str(tmp_path / "p.csv"), "--data", str(root), "--out", str(tmp_path / "o.json"), "--no-plots"]) == 0
+    summary = json.loads((tmp_path / "o.json").read_text())
+    assert summary["overall"]["max_m"] < 0.01
+    assert summary["overall"]["coverage"] == pytest.approx(1.0)

@@ -1,0 +1,157 @@
+"""Fusion of position and size cues, covariance, and the per-track TrackFuser (ROS-free)."""
+import math
+
+import numpy as np
+import pytest
+
+from vessel_calib.errors import DataError
+from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
+from vessel_track.fusion import (
+    REASON_ABOVE_HORIZON,
+    REASON_BEYOND_RANGE,
+    REASON_INVALID_INPUT,
+    CueStatistics,
+    FusionConfig,
+    ScreenTrack,
+    TrackFuser,
+    fit_cue_statistics,
+    fuse_boxes,
+    gls_weights,
+)
+from vessel_track.simulation import challenge_camera
+
+MODEL = BoxSizeDistanceModel(a=3000.0, b=5.0, c=1500.0, d=2.0)
+
+
+def _boxes_at(camera, world, model=MODEL):
+    xs, ys, _ = camera.world_to_screen(world[:, 0], world[:, 1])
+    w, h = model.size_of_depth(depth_of_world(camera, world[:, 0], world[:, 1]))
+    return np.column_stack([xs - w / 2, ys - h / 2, xs + w / 2, ys + h / 2])
+
+
+def _world(n=200, seed=0, far=500.0):
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(40, far, n)
+    b = np.radians(rng.uniform(55, 100, n))
+    return np.column_stack([r * np.sin(b), r * np.cos(b)])
+
+
+@pytest.mark.parametrize("mode", ["fitted", "paper", "position_only"])
+def test_exact_boxes_fuse_to_the_true_position(mode):
+    cam = challenge_camera()
+    world = _world()
+    fused = fuse_boxes(cam, MODEL, _boxes_at(cam, world), FusionConfig(weights_mode=mode))
+    assert fused.valid.all()
+    np.testing.assert_allclose(fused.world, world, atol=1e-3)
+    np.testing.assert_allclose(fused.weights.sum(axis=1), 1.0)
+
+
+def test_gls_weights_minimise_variance_and_handle_missing_cues():
+    cov = np.array([[4.0, -1.0, -1.0], [-1.0, 36.0, 20.0], [-1.0, 20.0, 25.0]])
+    w, var = gls_weights(cov, np.ones(3, bool))
+    assert w.sum() == pytest.approx(1.0)
+    assert var == pytest.approx(w @ cov @ w)
+    for other in ([0.5, 0.25, 0.25], [1.0, 0.0, 0.0], [0.6, 0.2, 0.2]):
+        assert var <= np.asarray(other) @ cov @ np.asarray(other) + 1e-12
+    w2, var2 = gls_weights(cov, np.array([True, False, True]))
+    assert w2[1] == 0 and w2.sum() == pytest.approx(1.0) and var2 > var
+
+
+def test_noisy_boxes_fitted_weights_beat_position_only_and_covariance_is_honest():
+    cam = challenge_camera()
+    rng = np.random.default_rng(5)
+    train, test = _world(400, 1, far=250.0), _world(400, 2, far=250.0)
+
+    def noisy(world, seed):
+        r = np.random.default_rng(seed)
+        b = _boxes_at(cam, world)
+        b[:, [1, 3]] += r.normal(0, 2.0, (len(b), 1))   # the box moves up/down: position cue noise
+        b += r.normal(0, 1.5, b.shape)                   # edges jitter: size and position noise
+        return b
+
+    stats = fit_cue_statistics(cam, MODEL, noisy(train, 11), train)
+    assert stats.std_px[0] == pytest.approx(math.hypot(2.0, 1.5 / math.sqrt(2)), rel=0.25)
+    boxes = noisy(test, 12)
+    errors = {}
+    for mode in ("position_only", "paper", "fitted"):
+        fused = fuse_boxes(cam, MODEL, boxes, FusionConfig(weights_mode=mode), stats)
+        errors[mode] = np.hypot(*(fused.world - test).T)
+        if mode == "fitted":
+            e = fused.world - test
+            nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(fused.covariance), e)
+            # Chi-square with 2 degrees of freedom: mean 2 when the covariance is right.
+            assert 1.2 < np.mean(nees) < 3.5
+    print({k: round(float(np.nanmedian(v)), 2) for k, v in errors.items()})
+    assert all(np.isfinite(v).all() for v in errors.values())
+    assert np.median(errors["fitted"]) < np.median(errors["position_only"])
+    assert np.median(errors["fitted"]) <= np.median(errors["paper"]) * 1.05
+    assert rng is not None
+
+
+def test_rejections_horizon_range_and_bad_boxes():
+    cam = challenge_camera()
+    horizon = float(cam.horizon_y(640.0))
+    boxes = np.array([
+        [630, horizon - 20, 650, horizon - 10],       # above the horizon
+        [630, horizon + 0.05, 650, horizon + 0.35],   # a sliver below it: kilometres away
+        [630, 500, 650, np.nan],                      # NaN
+        [650, 500, 630, 520],                         # negative width
+        [600, 500, 680, 540],                         # fine
+    ])
+    fused = fuse_boxes(cam, MODEL, boxes, FusionConfig(weights_mode="position_only", max_range_m=2000.0))
+    assert fused.reason.tolist() == [REASON_ABOVE_HORIZON, REASON_BEYOND_RANGE, REASON_INVALID_INPUT,
+                                     REASON_INVALID_INPUT, 0]
+    assert np.isnan(fused.world[:4]).all() and np.isfinite(fused.world[4]).all()
+    clipped = fuse_boxes(cam, MODEL, boxes[1:2], FusionConfig(weights_mode="position_only", max_range_m=1e7,
+                                                              clip_m=2000.0))
+    assert np.all(np.abs(clipped.world) <= 2000.0)
+
+
+def test_cut_box_drops_its_size_cue():
+    cam = challenge_camera()
+    world = np.array([[60.0, 10.0]])
+    box = _boxes_at(cam, world)
+    box[0, 2] = 1280.0  # right edge at the border
+    fused = fuse_boxes(cam, MODEL, box, FusionConfig())
+    assert np.isnan(fused.cue_y[0, 1]) and np.isfinite(fused.cue_y[0, 2])
+    assert fused.weights[0, 1] == 0.0
+
+
+def _track(tid, center, size=(30.0, 12.0), status=1, updated=True, conf=0.9):
+    return ScreenTrack(tid, status, np.array(center, float), np.array(size, float), conf, updated)
+
+
+def test_track_fuser_filters_selects_and_survives_bad_input():
+    cam = challenge_camera()
+    fuser = TrackFuser(cam, MODEL)
+    world_path = np.column_stack([150.0 + 2.0 * np.arange(12) * 4, 120.0 - 0.5 * np.arange(12) * 4])
+    boxes = _boxes_at(cam, world_path)
+    outputs = []
+    for k in range(12):
+        c = (boxes[k, :2] + boxes[k, 2:]) / 2
+        s = boxes[k, 2:] - boxes[k, :2]
+        tracks = [_track("A", c, s), _track("B", [300.0, 600.0], [40, 20], conf=0.4),
+                  _track("N", [np.nan, 500.0])]
+        outputs.append(fuser.update(1000.0 + 4 * k, tracks))
+    last = {w.screen.track_id: w for w in outputs[-1]}
+    assert last["A"].is_target and not last["B"].is_target and not last["N"].has_world
+    assert np.hypot(*(last["A"].position - world_path[-1])) < 1.0
+    assert last["A"].velocity == pytest.approx([2.0, -0.5], abs=0.2)
+    assert last["A"].expected_error_m == pytest.approx(0.0555 * last["A"].distance_m)
+    lat, lon = cam.world_to_gps(*last["A"].position)
+    assert (last["A"].latitude, last["A"].longitude) == pytest.approx((lat, lon))
+    assert fuser.counts["invalid_track"] == 12
+    # A replay restarting: stamps go back; everything resets, nothing raises.
+    again = fuser.update(1000.0, [_track("A", (boxes[0, :2] + boxes[0, 2:]) / 2, boxes[0, 2:] - boxes[0, :2])])
+    assert fuser.counts["stamp_backwards"] == 1 and again[0].has_world
+    with pytest.raises(DataError):
+        fuser.update(math.nan, [])
+
+
+def test_cue_statistics_validation():
+    with pytest.raises(DataError):
+        CueStatistics(covariance=-np.eye(3))
+    with pytest.raises(DataError):
+        FusionConfig(weights_mode="magic")
+    with pytest.raises(DataError):
+        FusionConfig(anchor=2.0)

@@ -1,0 +1,145 @@
+"""Vessel-of-interest selection: the paper's score, joining, online hysteresis (ROS-free)."""
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from vessel_calib.errors import DataError
+from vessel_track.selection import (
+    OnlineTargetSelector,
+    SelectionConfig,
+    Trajectory,
+    join_trajectories,
+    path_length_m,
+    select_target,
+    trajectory_score,
+)
+
+
+def test_score_is_the_papers_formula():
+    conf = np.linspace(0.1, 1.0, 10)
+    assert trajectory_score(conf, 500.0) == pytest.approx(np.percentile(conf, 80) * math.log(500.0))
+    assert trajectory_score(conf, 0.3) == 0.0          # does not move: 0, never negative
+    assert trajectory_score([], 100.0) == 0.0
+    assert path_length_m([[0, 0], [3, 4], [np.nan, 1], [3, 10]]) == pytest.approx(11.0)
+
+
+def _line(tid, t0, t1, start, velocity, conf=0.8, dt=4.0):
+    t = np.arange(t0, t1 + 1e-9, dt)
+    pos = np.asarray(start, float) + np.outer(t - t0, velocity)
+    return Trajectory(tid, t, pos, np.full(t.size, conf))
+
+
+def test_a_trajectory_cut_in_the_middle_is_joined_and_wins():
+    vessel_a = _line("A", 0, 60, [100, 0], [2.0, 1.0])
+    vessel_b = _line("B", 72, 140, [100 + 2 * 72, 72], [2.0, 1.0])       # same vessel after a 12 s gap
+    sailboat = _line("S", 0, 140, [-200, 400], [1.0, 0.0], conf=0.9)       # longer alone, elsewhere
+    post = _line("P", 0, 140, [20, -5], [0.0, 0.0], conf=0.95)            # the mooring post: never moves
+    unrelated = _line("U", 80, 140, [600, -300], [-1.0, 0.0])              # starts far from A's end
+    chains = join_trajectories([vessel_a, vessel_b, sailboat, post, unrelated])
+    members = sorted(sorted(c.members) for c in chains)
+    assert ["A", "B"] in members and ["U"] in members
+    best, scored = select_target([vessel_a, vessel_b, sailboat, post, unrelated])
+    assert best.members == ["A", "B"]
+    assert dict((c.track_id, s) for c, s in scored)["P"] == 0.0
+    # Without joining, the sailboat's single long trajectory would have won.
+    best_unjoined, _ = select_target([vessel_a, vessel_b, sailboat, post, unrelated], join=False)
+    assert best_unjoined.track_id == "S"
+
+
+def test_overlapping_or_distant_pieces_are_not_joined():
+    a = _line("A", 0, 60, [100, 0], [2.0, 1.0])
+    overlapping = _line("O", 40, 100, [180, 40], [2.0, 1.0])
+    assert len(join_trajectories([a, overlapping])) == 2
+    assert len(join_trajectories([a, overlapping], SelectionConfig(join_max_overlap_s=25.0))) == 1
+    late = _line("L", 200, 260, [500, 200], [2.0, 1.0])
+    assert len(join_trajectories([a, late])) == 2
+    with pytest.raises(DataError):
+        Trajectory("x", [], np.zeros((0, 2)), [])
+
+
+def _wt(tid, pos, conf=0.8, status=1, updated=True, velocity=(0.0, 0.0)):
+    return SimpleNamespace(screen=SimpleNamespace(track_id=tid, status=status, updated=updated, confidence=conf),
+                           has_world=True, position=np.asarray(pos, float), velocity=np.asarray(velocity, float))
+
+
+def test_online_selection_has_hysteresis():
+    selector = OnlineTargetSelector(SelectionConfig(switch_ratio=1.2, switch_margin=0.5, switch_hold_s=8.0))
+    # Two similar vessels: the first chosen stays chosen while the other is only slightly better.
+    targets = []
+    for k in range(30):
+        t = 4.0 * k
+        targets.append(selector.update(t, [_wt("A", [100 + 2.0 * t, 0], velocity=(2.0, 0)),
+                                           _wt("B", [0, 100 + 2.1 * t], velocity=(0, 2.1))]))
+    assert set(targets) == {"A"} and selector.switches == 0
+    # A stops, B becomes clearly better (fast, confident): it takes over, but only after the hold time.
+    switched_at, ahead_since = None, None
+    for k in range(30, 80):
+        t = 4.0 * k
+        target = selector.update(t, [_wt("A", [332, 0]),
+                                     _wt("B", [0, 343.6 + 20.0 * (t - 116)], conf=0.95, velocity=(0, 20.0))])
+        if ahead_since is None and selector.score("B") > 1.2 * selector.score("A") + 0.5:
+            ahead_since = t
+        if target == "B" and switched_at is None:
+            switched_at = t
+    assert switched_at is not None and selector.switches == 1
+    assert switched_at - ahead_since >= 8.0
+
+
+def test_online_join_keeps_the_target_through_a_new_track_id():
+    selector = OnlineTargetSelector()
+    for k in range(10):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)),
+                                  _wt("S", [-300, 300 + 0.4 * k], conf=0.6, velocity=(0, 0.1))])
+    assert selector.target == "A"
+    selector.update(40.0, [_wt("A", [180, 50], status=3), _wt("S", [-300, 304], conf=0.6)])
+    # The vessel reappears as a new, still tentative track where A would be now.
+    target = selector.update(48.0, [_wt("C", [196, 50], status=0, velocity=(2.0, 0)),
+                                    _wt("S", [-300, 304.4], conf=0.6, velocity=(0, 0.1))])
+    assert target == "C" and selector.joins == 1
+    assert selector.score("C") > selector.score("S") > 0
+
+
+def test_tentative_target_only_while_nothing_established():
+    selector = OnlineTargetSelector()
+    assert selector.update(0.0, [_wt("T", [100, 0], status=0)]) == "T"
+    assert selector.update(4.0, [_wt("T", [104, 0], status=0), _wt("E", [0, 100], status=1)]) == "E"
+    assert selector.update(8.0, []) is None
+
+
+def test_config_validation():
+    with pytest.raises(DataError):
+        SelectionConfig(switch_ratio=0.5)
+    with pytest.raises(DataError):
+        SelectionConfig(confidence_percentile=120)
+
+
+def test_handover_to_a_new_track_while_the_target_coasts():
+    selector = OnlineTargetSelector()
+    for k in range(8):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0))])
+    assert selector.target == "A"
+    # The tracker lost the vessel in a turn: A coasts on, a new tentative track B starts where the vessel is.
+    target = selector.update(32.0, [_wt("A", [164, 50], status=2, updated=False, velocity=(2.0, 0)),
+                                    _wt("B", [166, 58], status=0, velocity=(0.0, 0.0))])
+    assert target == "B" and selector.joins == 1
+    # Far from where A should be: no handover.
+    selector2 = OnlineTargetSelector()
+    for k in range(8):
+        selector2.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0))])
+    target = selector2.update(32.0, [_wt("A", [164, 50], status=2, updated=False, velocity=(2.0, 0)),
+                                     _wt("B", [400, -300], status=0)])
+    assert target == "A"
+
+
+def test_no_stand_in_right_after_the_target_is_lost():
+    selector = OnlineTargetSelector(SelectionConfig(reacquire_fraction=0.9, join_max_gap_s=30.0))
+    for k in range(20):
+        selector.update(4.0 * k, [_wt("A", [100 + 12.0 * k, 50], velocity=(3.0, 0)),
+                                  _wt("S", [-300, 300 + 0.4 * k], conf=0.6, velocity=(0, 0.1))])
+    assert selector.target == "A"
+    assert selector.update(80.0, [_wt("A", [340, 50], status=3), _wt("S", [-300, 308], conf=0.6)]) is None
+    assert selector.update(100.0, [_wt("S", [-300, 310], conf=0.6, velocity=(0, 0.1))]) is None
+    # Long after the loss, the best remaining vessel is the target again.
+    assert selector.update(120.0, [_wt("S", [-300, 312], conf=0.6, velocity=(0, 0.1))]) == "S"

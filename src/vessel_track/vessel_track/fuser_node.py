@@ -1,0 +1,148 @@
+"""``fuser`` node: screen-space tracks in, tracks on the sea plane (metres, lat/lon, covariance, target) out.
+
+Subscribes ``/vessel/tracks/screen`` (``vessel_msgs/VesselTrackArray`` from the tracker), publishes
+``/vessel/tracks`` with every track's world position, velocity, 2x2 covariances, lat/lon, distance,
+bearing, expected error and the vessel-of-interest flag; the header (image stamp) is kept. The work is done by
+``vessel_track.fusion.TrackFuser`` (fusion of box position and size, a Kalman filter per track in world
+coordinates, online target selection); this node converts messages and reports problems on ``/diagnostics``.
+
+A track counts as measured in a frame when its ``last_seen`` equals the array's stamp (the tracker sets it to
+the stamp of the detection it associated).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from rclpy.node import Node
+
+from vessel_calib.node_support import (
+    NodeHealth,
+    declare_camera_model,
+    declare_parameter,
+    reliable_qos,
+    stamp_to_sec,
+)
+from vessel_msgs.msg import VesselTrack, VesselTrackArray
+from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.node_params import FUSER_TOPICS, declare_fuser_settings, main_with_checks
+
+#: last_seen within this of the frame stamp means the track was updated in this frame.
+UPDATED_TOLERANCE_S = 1e-6
+
+PROBLEM_MESSAGES = {
+    "invalid_track": "a track with NaN/inf or non-positive box size was received; it is passed on without a "
+                     "world position",
+    "stamp_backwards": "track stamps went backwards (replay restarted?): every world filter was reset",
+    "gap": "a long gap between track messages: the world filters restart",
+    "above_horizon": "a box on or above the horizon gave no position",
+    "beyond_max_range": "a box beyond fusion.max_range_m gave no position",
+    "invalid_box": "a box could not be undistorted (outside the lens model)",
+    "outlier_rejected": "a fused position far from its track's prediction was rejected by the world filter",
+    "nonfinite_stamp": "a track array with a non-finite stamp was dropped",
+}
+
+
+def screen_track_from_msg(msg: VesselTrack, stamp: float) -> ScreenTrack:
+    """The fuser core's view of a ``VesselTrack`` from the tracker."""
+    last_seen = stamp_to_sec(msg.last_seen)
+    return ScreenTrack(
+        track_id=msg.id,
+        status=int(msg.status),
+        center=np.array([msg.bbox.center.position.x, msg.bbox.center.position.y], dtype=float),
+        size=np.array([msg.bbox.size_x, msg.bbox.size_y], dtype=float),
+        confidence=float(msg.confidence),
+        updated=abs(last_seen - stamp) <= UPDATED_TOLERANCE_S,
+        detection_count=int(msg.detection_count),
+        first_seen=stamp_to_sec(msg.first_seen),
+        last_seen=last_seen,
+        center_cov=np.asarray(msg.screen_covariance, dtype=float).reshape(2, 2),
+        velocity_px=np.array([msg.screen_velocity.x, msg.screen_velocity.y], dtype=float),
+    )
+
+
+def _finite_or_nan(values) -> list[float]:
+    return [float(v) if math.isfinite(v) else math.nan for v in np.asarray(values, dtype=float).ravel()]
+
+
+def fill_world_fields(msg: VesselTrack, world: WorldTrack) -> VesselTrack:
+    """Write the fuser's results into ``msg`` (a copy of the input track); NaN and has_world=False if none."""
+    msg.is_target = bool(world.is_target)
+    msg.score = float(world.score)
+    msg.has_world = bool(world.has_world)
+    msg.position.x, msg.position.y, msg.position.z = (float(world.position[0]), float(world.position[1]),
+                                                      0.0 if world.has_world else math.nan)
+    msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(world.velocity[0]), float(world.velocity[1]),
+                                                      0.0 if world.has_world else math.nan)
+    msg.position_covariance = _finite_or_nan(world.position_covariance)
+    msg.velocity_covariance = _finite_or_nan(world.velocity_covariance)
+    msg.latitude = float(world.latitude)
+    msg.longitude = float(world.longitude)
+    msg.distance_m = float(world.distance_m)
+    msg.bearing_deg = float(world.bearing_deg)
+    msg.expected_error_m = float(world.expected_error_m)
+    return msg
+
+
+class FuserNode(Node):
+    """Thin ROS wrapper around ``TrackFuser``; see the module docstring."""
+
+    def __init__(self):
+        super().__init__("fuser")
+        self.camera = declare_camera_model(self)
+        self.settings = declare_fuser_settings(self)
+        input_topic = declare_parameter(self, "input_topic", *FUSER_TOPICS["input_topic"])
+        output_topic = declare_parameter(self, "output_topic", *FUSER_TOPICS["output_topic"])
+        depth = declare_parameter(self, "qos_depth", *FUSER_TOPICS["qos_depth"], int_range=(1, 1000))
+        s = self.settings
+        self.core = TrackFuser(self.camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection,
+                               s.error_model)
+        self.health = NodeHealth(self)
+        self._reported_counts: dict[str, int] = {}
+        self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
+        self.subscription = self.create_subscription(VesselTrackArray, input_topic, self.on_tracks,
+                                                     reliable_qos(depth))
+        self.get_logger().info(
+            f"fuser: {input_topic} -> {output_topic}; camera heading {self.camera.heading_deg:.1f} deg, weights "
+            f"{s.fusion.weights_mode}, error model {100 * s.error_model.slope:.2f} m/100 m")
+
+    def on_tracks(self, msg: VesselTrackArray) -> None:
+        """Fuse one image's tracks and publish them with their world state."""
+        stamp = stamp_to_sec(msg.header.stamp)
+        if not math.isfinite(stamp):
+            self.health.problem("nonfinite_stamp", PROBLEM_MESSAGES["nonfinite_stamp"])
+            return
+        screen = [screen_track_from_msg(track, stamp) for track in msg.tracks]
+        world = self.core.update(stamp, screen)
+        by_id = {id(w.screen): w for w in world}
+        out = VesselTrackArray()
+        out.header = msg.header
+        for track_msg, screen_track in zip(msg.tracks, screen, strict=True):
+            out.tracks.append(fill_world_fields(track_msg, by_id[id(screen_track)]))
+        self.publisher.publish(out)
+        self._report(out)
+
+    def _report(self, out: VesselTrackArray) -> None:
+        self.health.count("frames")
+        for kind, count in self.core.counts.items():
+            new = count - self._reported_counts.get(kind, 0)
+            if new > 0:
+                for _ in range(new):
+                    self.health.problem(kind, PROBLEM_MESSAGES.get(kind, kind))
+                self._reported_counts[kind] = count
+        target = next((t for t in out.tracks if t.is_target), None)
+        self.health.set_value("tracks", len(out.tracks))
+        self.health.set_value("target", target.id if target is not None else "")
+        if target is not None and target.has_world:
+            self.health.set_value("target_distance_m", float(target.distance_m))
+
+
+def main(args=None) -> None:
+    """Console entry point: ``ros2 run vessel_track fuser --ros-args --params-file config/aitas.yaml``."""
+    import sys
+
+    sys.exit(main_with_checks(FuserNode, args))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,497 @@
+"""Screen -> sea plane for one box: position cue and box-size cues fused, with an honest covariance.
+
+The paper's post-processing step 2: the vessel's ideal y comes from three cues,
+
+* the box position (its reference point, the centre by default, undistorted),
+* the depth implied by the box width and by the box height (``vessel_track.distance_model``),
+
+fused as ``y = 0.5 y_position + 0.25 y_width + 0.25 y_height`` (the paper) or, by default, with the weights
+that minimise the variance of the fused y given the covariance of the three cues measured on training
+boxes (generalised least squares: ``w = S^-1 1 / (1' S^-1 1)``; the cues' errors are correlated because the
+same box edges feed them). A cue whose box edge is cut by the image border is dropped and the weights
+renormalised. The fused ideal point goes through ``H^-1`` to metres; points on or above the horizon or beyond
+``max_range_m`` are rejected, positions clipped to ±``clip_m`` as in the paper. The 2x2 position covariance is
+the pixel covariance pushed through the Jacobian of the back-projection, so it is long along the line of sight.
+
+``TrackFuser`` applies this per track and frame, runs a ``WorldKalmanFilter`` per track and the online
+vessel-of-interest selection: it is the core of the ``fuser`` node and of the pipeline's online mode.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vessel_calib import geodesy
+from vessel_calib.errors import DataError
+from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border
+from vessel_track.error_model import ErrorModel
+from vessel_track.selection import OnlineTargetSelector, SelectionConfig
+from vessel_track.smoothing import FilterOutput, MotionConfig, WorldKalmanFilter
+
+WEIGHT_MODES = ("fitted", "paper", "position_only")
+
+#: Covariance of the cues' ideal-y errors (position, width, height), px^2, measured leave-one-video-out on the
+#: hand boxes of training videos 7-12 (``python -m vessel_track.distance_model fit``).
+DEFAULT_CUE_COVARIANCE = (5.7147051439, -4.8621659687, -4.9854487734, -4.8621659687, 68.5918439092, 48.7700666298,
+                          -4.9854487734, 48.7700666298, 54.709869639)
+PAPER_WEIGHTS = (0.5, 0.25, 0.25)
+#: Chi-square (2 dof, 99 %) below which a box's size cues agree with its position cue.
+SIZE_CONSISTENCY_CHI2 = 9.21
+
+# Why a box gave no position.
+REASON_OK = 0
+REASON_INVALID_INPUT = 1
+REASON_ABOVE_HORIZON = 2
+REASON_BEYOND_RANGE = 3
+REASON_NAMES = {REASON_OK: "ok", REASON_INVALID_INPUT: "invalid_box", REASON_ABOVE_HORIZON: "above_horizon",
+                REASON_BEYOND_RANGE: "beyond_max_range"}
+
+
+@dataclass(frozen=True)
+class CueStatistics:
+    """Measured noise of the three y cues (position, width, height) and of x, in ideal pixels.
+
+    ``covariance`` (3, 3) of the cues' y errors; ``x_std_px`` the position cue's x error; ``weights`` the
+    variance-minimising weights of all three; ``fused_std_px`` the std of the fused y with those weights.
+    """
+
+    covariance: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_CUE_COVARIANCE).reshape(3, 3))
+    x_std_px: float = 11.9438446049
+    n_points: int = 65
+
+    def __post_init__(self) -> None:
+        """Check the covariance is a usable 3x3 positive-definite matrix."""
+        cov = np.asarray(self.covariance, dtype=float).reshape(3, 3)
+        cov = 0.5 * (cov + cov.T)
+        if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(cov) <= 0):
+            raise DataError("fusion: cue_covariance must be a finite positive-definite 3x3 matrix (9 numbers)")
+        object.__setattr__(self, "covariance", cov)
+        if not (math.isfinite(self.x_std_px) and self.x_std_px > 0):
+            raise DataError(f"fusion: cue_x_std_px must be > 0, got {self.x_std_px!r}")
+
+    @property
+    def std_px(self) -> np.ndarray:
+        """Standard deviation of each cue's y, ideal px."""
+        return np.sqrt(np.diag(self.covariance))
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Variance-minimising weights of (position, width, height)."""
+        return gls_weights(self.covariance, np.ones(3, dtype=bool))[0]
+
+    def to_params(self) -> dict:
+        """The ``fusion.cue_*`` parameters."""
+        return {"cue_covariance": [float(v) for v in self.covariance.ravel()], "cue_x_std_px": float(self.x_std_px),
+                "cue_n_points": int(self.n_points)}
+
+
+def gls_weights(covariance: np.ndarray, available: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weights over the ``available`` cues minimising the fused variance; returns (weights (3,), variance)."""
+    idx = np.flatnonzero(available)
+    weights = np.zeros(3)
+    if idx.size == 0:
+        return weights, math.nan
+    sub = covariance[np.ix_(idx, idx)]
+    inv_one = np.linalg.solve(sub, np.ones(idx.size))
+    total = float(inv_one.sum())
+    weights[idx] = inv_one / total
+    return weights, 1.0 / total
+
+
+def fixed_weights(base, covariance: np.ndarray, available: np.ndarray) -> tuple[np.ndarray, float]:
+    """``base`` weights renormalised over the available cues; returns (weights, variance of the fused y)."""
+    weights = np.where(available, np.asarray(base, dtype=float), 0.0)
+    total = weights.sum()
+    if total <= 0:
+        return np.zeros(3), math.nan
+    weights = weights / total
+    return weights, float(weights @ covariance @ weights)
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """How boxes become positions.
+
+    weights_mode: ``fitted`` (variance-minimising, from the measured cue covariance), ``paper`` (0.5, 0.25,
+        0.25 for position, width, height) or ``position_only`` (the box position alone).
+    anchor: reference point of the box along its height: 0 top edge, 0.5 centre (the paper and the
+        calibration's labels), 1 bottom edge.
+    max_range_m: positions further than this from the camera are rejected (1 px near the horizon is
+        hundreds of metres out there).
+    clip_m: positions are clipped to ±clip_m east and north (the paper: 2000).
+    min_depth_m: points closer than this in depth (behind or at the camera) are rejected.
+    """
+
+    weights_mode: str = "fitted"
+    anchor: float = 0.5
+    max_range_m: float = 2000.0
+    clip_m: float = 2000.0
+    min_depth_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        """Validate the fields."""
+        if self.weights_mode not in WEIGHT_MODES:
+            raise DataError(f"fusion: weights_mode must be one of {', '.join(WEIGHT_MODES)}, got "
+                            f"{self.weights_mode!r}")
+        if not (math.isfinite(self.anchor) and 0.0 <= self.anchor <= 1.0):
+            raise DataError(f"fusion: anchor must be in [0, 1] (0 top, 0.5 centre, 1 bottom), got {self.anchor!r}")
+        for name in ("max_range_m", "clip_m", "min_depth_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise DataError(f"fusion: {name} must be a positive number of metres, got {value!r}")
+
+    def to_params(self) -> dict:
+        """The ``fusion`` parameters (without the cue statistics)."""
+        return {"weights_mode": self.weights_mode, "anchor": float(self.anchor), "max_range_m": float(self.max_range_m),
+                "clip_m": float(self.clip_m), "min_depth_m": float(self.min_depth_m)}
+
+
+@dataclass
+class FusedBoxes:
+    """Result of ``fuse_boxes`` for N boxes (arrays; NaN where invalid)."""
+
+    world: np.ndarray          # (N, 2) metres east, north
+    covariance: np.ndarray     # (N, 2, 2) m^2
+    valid: np.ndarray          # (N,) bool
+    reason: np.ndarray         # (N,) int, REASON_*
+    ideal_x: np.ndarray        # (N,) ideal x of the reference point
+    cue_y: np.ndarray          # (N, 3) ideal y from position, width, height (NaN: cue unavailable)
+    fused_y: np.ndarray        # (N,) fused ideal y
+    fused_y_std: np.ndarray    # (N,) its standard deviation, ideal px
+    weights: np.ndarray        # (N, 3) weights used
+    screen: np.ndarray         # (N, 2) the fused point on screen (px)
+    size_chi2: np.ndarray = None  # (N,) disagreement of the size cues with the position cue (NaN: no size cue)
+
+    @property
+    def size_consistent(self) -> np.ndarray:
+        """(N,) the box's size agrees with its position for a vessel of the fitted size (chi-square 2 dof, 99 %)."""
+        return np.asarray(self.size_chi2, dtype=float) <= SIZE_CONSISTENCY_CHI2
+
+    @property
+    def distance_m(self) -> np.ndarray:
+        """Range from the camera, m."""
+        return np.hypot(self.world[:, 0], self.world[:, 1])
+
+
+def ideal_to_world_jacobian(camera, xp, yp) -> np.ndarray:
+    """d(x_w, y_w)/d(x_p, y_p), shape (N, 2, 2), from H^-1."""
+    G = np.asarray(camera.H_inv, dtype=float)
+    xp = np.asarray(xp, dtype=float).reshape(-1)
+    yp = np.asarray(yp, dtype=float).reshape(-1)
+    W = G[2, 0] * xp + G[2, 1] * yp + G[2, 2]
+    xw = (G[0, 0] * xp + G[0, 1] * yp + G[0, 2]) / W
+    yw = (G[1, 0] * xp + G[1, 1] * yp + G[1, 2]) / W
+    J = np.empty((xp.size, 2, 2))
+    J[:, 0, 0] = (G[0, 0] - xw * G[2, 0]) / W
+    J[:, 0, 1] = (G[0, 1] - xw * G[2, 1]) / W
+    J[:, 1, 0] = (G[1, 0] - yw * G[2, 0]) / W
+    J[:, 1, 1] = (G[1, 1] - yw * G[2, 1]) / W
+    return J
+
+
+def reference_points(boxes_xyxy, anchor: float) -> np.ndarray:
+    """(N, 2) reference point of each box: horizontal centre, ``anchor`` of the way down the box."""
+    b = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+    return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
+
+
+def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionConfig | None = None,
+               stats: CueStatistics | None = None) -> FusedBoxes:
+    """Fuse position and size cues of each box (N, 4 full-resolution px) into sea-plane positions."""
+    config = config or FusionConfig()
+    stats = stats or CueStatistics()
+    boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+    n = boxes.shape[0]
+    sizes = boxes[:, 2:] - boxes[:, :2]
+    ok_input = np.all(np.isfinite(boxes), axis=1) & np.all(sizes > 0, axis=1)
+    safe = np.where(ok_input[:, None], boxes, np.array([0.0, 0.0, 1.0, 1.0]))
+    ref = reference_points(safe, config.anchor)
+    xp, yp_pos = camera.undistort(ref[:, 0], ref[:, 1])
+    xp = np.asarray(xp, dtype=float).reshape(-1)
+    yp_pos = np.asarray(yp_pos, dtype=float).reshape(-1)
+    ok_input &= np.isfinite(xp) & np.isfinite(yp_pos)
+    cue_y = np.full((n, 3), np.nan)
+    cue_y[:, 0] = yp_pos
+    if config.weights_mode != "position_only":
+        y_w, y_h = model.ideal_y_from_sizes(camera, xp, sizes[:, 0], sizes[:, 1])
+        cut = box_cut_by_border(safe, camera.image_size)
+        cue_y[:, 1] = np.where(cut[:, 0], np.nan, y_w)
+        cue_y[:, 2] = np.where(cut[:, 1], np.nan, y_h)
+    cue_y[~ok_input] = np.nan
+    weights = np.zeros((n, 3))
+    var_y = np.full(n, np.nan)
+    for i in range(n):
+        available = np.isfinite(cue_y[i])
+        if not available[0]:
+            continue  # without the box position there is no x either
+        if config.weights_mode == "fitted":
+            weights[i], var_y[i] = gls_weights(stats.covariance, available)
+        elif config.weights_mode == "paper":
+            weights[i], var_y[i] = fixed_weights(PAPER_WEIGHTS, stats.covariance, available)
+        else:
+            weights[i], var_y[i] = fixed_weights((1.0, 0.0, 0.0), stats.covariance, available)
+    fused_y = np.where(ok_input, np.nansum(np.nan_to_num(cue_y) * weights, axis=1), np.nan)
+    xw, yw, in_front = camera.ideal_to_world(xp, fused_y)
+    xw = np.asarray(xw, dtype=float).reshape(-1)
+    yw = np.asarray(yw, dtype=float).reshape(-1)
+    in_front = np.asarray(in_front, dtype=bool).reshape(-1)
+    reason = np.full(n, REASON_OK)
+    reason[~ok_input] = REASON_INVALID_INPUT
+    depth = -np.asarray(camera.zp_of_world(np.nan_to_num(xw), np.nan_to_num(yw)), dtype=float)
+    from vessel_track.distance_model import depth_scale
+
+    depth = depth / depth_scale(camera)
+    above = ok_input & (~in_front | ~(depth >= config.min_depth_m))
+    reason[above] = REASON_ABOVE_HORIZON
+    rng = np.hypot(xw, yw)
+    beyond = ok_input & ~above & ~(rng <= config.max_range_m)
+    reason[beyond] = REASON_BEYOND_RANGE
+    valid = reason == REASON_OK
+    world = np.column_stack([np.clip(xw, -config.clip_m, config.clip_m), np.clip(yw, -config.clip_m, config.clip_m)])
+    world[~valid] = np.nan
+    J = ideal_to_world_jacobian(camera, np.where(valid, xp, 0.0), np.where(valid, fused_y, 0.0))
+    cov_px = np.zeros((n, 2, 2))
+    cov_px[:, 0, 0] = stats.x_std_px**2
+    cov_px[:, 1, 1] = np.where(valid, var_y, 1.0)
+    covariance = J @ cov_px @ np.swapaxes(J, 1, 2)
+    covariance = 0.5 * (covariance + np.swapaxes(covariance, 1, 2))
+    covariance[~valid] = np.nan
+    xs, ys = camera.distort(xp, fused_y)
+    screen = np.column_stack([np.asarray(xs, dtype=float).reshape(-1), np.asarray(ys, dtype=float).reshape(-1)])
+    screen[~valid] = np.nan
+    return FusedBoxes(world, covariance, valid, reason, xp, cue_y, np.where(valid, fused_y, np.nan),
+                      np.sqrt(var_y), weights, screen, size_disagreement_chi2(cue_y, stats.covariance))
+
+
+def size_disagreement_chi2(cue_y: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Per box: chi-square of the differences (width cue - position cue, height cue - position cue).
+
+    The distance model describes the vessel of interest's size, so a box whose size says "much nearer" or
+    "much further" than its position is likely another vessel (a sailboat's mast, a ferry) or clutter. NaN when a
+    size cue is missing.
+    """
+    D = np.array([[-1.0, 1.0, 0.0], [-1.0, 0.0, 1.0]])
+    S_inv = np.linalg.inv(D @ covariance @ D.T)
+    d = np.asarray(cue_y, dtype=float).reshape(-1, 3) @ D.T
+    return np.einsum("ni,ij,nj->n", d, S_inv, d)
+
+
+def boxes_from_centers(centers, sizes) -> np.ndarray:
+    """(N, 4) x1, y1, x2, y2 from centres (N, 2) and sizes (N, 2)."""
+    c = np.asarray(centers, dtype=float).reshape(-1, 2)
+    s = np.asarray(sizes, dtype=float).reshape(-1, 2)
+    return np.column_stack([c - s / 2.0, c + s / 2.0])
+
+
+def cue_residuals(camera, model: BoxSizeDistanceModel, boxes_xyxy, world_xy, config: FusionConfig | None = None):
+    """Per box: the three cues' ideal-y errors (N, 3) and the ideal-x error (N,) against the true positions."""
+    config = config or FusionConfig()
+    boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+    world = np.asarray(world_xy, dtype=float).reshape(-1, 2)
+    fused = fuse_boxes(camera, model, boxes, FusionConfig(weights_mode="paper", anchor=config.anchor,
+                                                          max_range_m=1e9, clip_m=1e9), CueStatistics())
+    xp_true, yp_true, zp = camera.world_to_ideal(world[:, 0], world[:, 1])
+    behind = ~(np.asarray(zp, dtype=float).reshape(-1) < 0)
+    resid = fused.cue_y - np.asarray(yp_true, dtype=float).reshape(-1)[:, None]
+    x_resid = fused.ideal_x - np.asarray(xp_true, dtype=float).reshape(-1)
+    resid[behind] = np.nan
+    return resid, x_resid
+
+
+def fit_cue_statistics(camera, model: BoxSizeDistanceModel, boxes_xyxy, world_xy,
+                       config: FusionConfig | None = None) -> CueStatistics:
+    """Measure the cues' y errors (and the x error) against the true positions of training boxes.
+
+    Robust: residuals beyond 4 robust sigmas are left out of the covariance. Boxes cut by the border are
+    left out (their size cues do not exist).
+    """
+    resid, x_resid = cue_residuals(camera, model, boxes_xyxy, world_xy, config)
+    return cue_statistics_of_residuals(resid, x_resid)
+
+
+def cue_statistics_of_residuals(resid, x_resid) -> CueStatistics:
+    """Robust covariance of cue residuals (N, 3) and robust std of x residuals (N,), see fit_cue_statistics."""
+    resid = np.asarray(resid, dtype=float).reshape(-1, 3)
+    x_resid = np.asarray(x_resid, dtype=float).reshape(-1)
+    ok = np.all(np.isfinite(resid), axis=1) & np.isfinite(x_resid)
+    if ok.sum() < 5:
+        raise DataError(f"fusion: only {int(ok.sum())} training boxes have all three cues (need 5)")
+    r = resid[ok]
+    med = np.median(r, axis=0)
+    sig = np.maximum(MAD_TO_SIGMA * np.median(np.abs(r - med), axis=0), 0.3)
+    inliers = np.all(np.abs(r - med) <= 4.0 * sig, axis=1)
+    r_in = r[inliers]
+    cov = np.cov(r_in, rowvar=False, bias=False) if r_in.shape[0] > 3 else np.diag(sig**2)
+    cov = cov + np.eye(3) * 1e-6
+    xr = x_resid[ok]
+    x_std = max(MAD_TO_SIGMA * float(np.median(np.abs(xr - np.median(xr)))), 0.5)
+    return CueStatistics(cov, x_std, int(r_in.shape[0]))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Per-track online fusion
+
+
+@dataclass
+class ScreenTrack:
+    """One tracked vessel as the fuser receives it (from a ``TrackState`` or a ``VesselTrack`` message)."""
+
+    track_id: str
+    status: int                 # TrackStatus / VesselTrack.STATUS_*
+    center: np.ndarray          # (2,) px
+    size: np.ndarray            # (2,) px
+    confidence: float
+    updated: bool               # a detection was associated in this frame
+    detection_count: int = 0
+    first_seen: float = math.nan
+    last_seen: float = math.nan
+    center_cov: np.ndarray | None = None
+    velocity_px: np.ndarray | None = None
+
+    @property
+    def box_xyxy(self) -> np.ndarray:
+        """(4,) box around the centre."""
+        return boxes_from_centers(self.center, self.size)[0]
+
+
+STATUS_LOST = 3
+STATUS_TENTATIVE = 0
+
+
+@dataclass
+class WorldTrack:
+    """A track after fusion: the screen track plus its filtered sea-plane state (NaN when unknown)."""
+
+    screen: ScreenTrack
+    stamp: float
+    has_world: bool = False
+    position: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    velocity: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    position_covariance: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+    velocity_covariance: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+    latitude: float = math.nan
+    longitude: float = math.nan
+    distance_m: float = math.nan
+    bearing_deg: float = math.nan
+    expected_error_m: float = math.nan
+    is_target: bool = False
+    score: float = 0.0
+    measured_position: np.ndarray | None = None   # this frame's fused (unfiltered) position, if any
+    measured_covariance: np.ndarray | None = None
+    measured_screen: np.ndarray | None = None     # the fused point on screen, px
+    size_consistent: bool | None = None           # this frame's box size agrees with the fitted vessel size
+    rejected_reason: str = ""                     # why this frame's box gave no position ("" if it did)
+
+
+class TrackFuser:
+    """Per-frame fusion, per-track world Kalman filter and online target selection.
+
+    ``update(stamp, tracks)`` takes every track of one image (``ScreenTrack``) and returns a ``WorldTrack``
+    for each. ``counts`` records bad input and rejections by kind (for the node's diagnostics).
+    """
+
+    def __init__(self, camera, distance_model: BoxSizeDistanceModel | None = None,
+                 fusion_config: FusionConfig | None = None, cue_stats: CueStatistics | None = None,
+                 motion_config: MotionConfig | None = None, selection_config: SelectionConfig | None = None,
+                 error_model: ErrorModel | None = None):
+        if camera.camera_lat is None:
+            raise DataError("fuser: the camera model has no position (camera_lat/camera_lon); set them in the "
+                            "calibration file")
+        self.camera = camera
+        self.distance_model = distance_model or BoxSizeDistanceModel()
+        self.fusion_config = fusion_config or FusionConfig()
+        self.cue_stats = cue_stats or CueStatistics()
+        self.motion_config = motion_config or MotionConfig()
+        self.selector = OnlineTargetSelector(selection_config or SelectionConfig())
+        self.error_model = error_model or ErrorModel()
+        self.filters: dict[str, WorldKalmanFilter] = {}
+        self.last_stamp: float | None = None
+        self.counts: dict[str, int] = {}
+
+    def _count(self, kind: str) -> None:
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+
+    def reset(self) -> None:
+        """Forget every track (a replay restarted)."""
+        self.filters.clear()
+        self.selector.reset()
+        self.last_stamp = None
+
+    def update(self, stamp: float, tracks: list[ScreenTrack]) -> list[WorldTrack]:
+        """Fuse one frame's tracks; raises DataError only for a non-finite stamp."""
+        stamp = float(stamp)
+        if not math.isfinite(stamp):
+            raise DataError(f"fuser: stamp must be finite seconds, got {stamp}")
+        if self.last_stamp is not None and stamp < self.last_stamp:
+            self._count("stamp_backwards")
+            self.reset()
+        elif self.last_stamp is not None and stamp - self.last_stamp > self.motion_config.max_gap_s:
+            self._count("gap")
+        self.last_stamp = stamp
+        good: list[ScreenTrack] = []
+        out: list[WorldTrack] = []
+        for track in tracks:
+            if not (np.all(np.isfinite(track.center)) and np.all(np.isfinite(track.size)) and
+                    np.all(np.asarray(track.size) > 0)):
+                self._count("invalid_track")
+                out.append(WorldTrack(track, stamp, rejected_reason=REASON_NAMES[REASON_INVALID_INPUT]))
+                if track.status == STATUS_LOST:
+                    self.filters.pop(track.track_id, None)
+                continue
+            good.append(track)
+        measured = [t for t in good if t.updated and t.status != STATUS_LOST]
+        fused = fuse_boxes(self.camera, self.distance_model, np.array([t.box_xyxy for t in measured]).reshape(-1, 4),
+                           self.fusion_config, self.cue_stats) if measured else None
+        fused_by_id = {t.track_id: i for i, t in enumerate(measured)}
+        world_tracks: list[WorldTrack] = []
+        for track in good:
+            wt = WorldTrack(track, stamp)
+            kf = self.filters.get(track.track_id)
+            result: FilterOutput | None = None
+            if track.status == STATUS_LOST:
+                if kf is not None and kf.initialised:
+                    result = kf.predict(stamp)
+                self.filters.pop(track.track_id, None)
+            elif track.track_id in fused_by_id:
+                i = fused_by_id[track.track_id]
+                if kf is None:
+                    kf = self.filters[track.track_id] = WorldKalmanFilter(self.motion_config)
+                if fused.valid[i]:
+                    wt.measured_position = fused.world[i].copy()
+                    wt.measured_covariance = fused.covariance[i].copy()
+                    wt.measured_screen = fused.screen[i].copy()
+                    chi2 = float(fused.size_chi2[i])
+                    wt.size_consistent = None if not math.isfinite(chi2) else bool(chi2 <= SIZE_CONSISTENCY_CHI2)
+                    result = kf.update(stamp, fused.world[i], fused.covariance[i])
+                    if result is not None and not result.accepted and not result.restarted:
+                        self._count("outlier_rejected")
+                else:
+                    wt.rejected_reason = REASON_NAMES[int(fused.reason[i])]
+                    self._count(wt.rejected_reason)
+                    result = kf.predict(stamp) if kf.initialised else None
+            elif kf is not None and kf.initialised:
+                result = kf.predict(stamp)
+            if result is not None:
+                self._fill_world(wt, result)
+            world_tracks.append(wt)
+        target = self.selector.update(stamp, world_tracks)
+        for wt in world_tracks:
+            wt.score = self.selector.score(wt.screen.track_id)
+            wt.is_target = target is not None and wt.screen.track_id == target and wt.screen.status != STATUS_LOST
+        return out + world_tracks
+
+    def _fill_world(self, wt: WorldTrack, result: FilterOutput) -> None:
+        clip = self.fusion_config.clip_m
+        position = np.clip(result.position, -clip, clip)
+        wt.has_world = True
+        wt.position = position
+        wt.velocity = result.velocity
+        wt.position_covariance = result.position_covariance
+        wt.velocity_covariance = result.velocity_covariance
+        lat, lon = geodesy.local_to_gps(position[0], position[1], self.camera.camera_lat, self.camera.camera_lon)
+        wt.latitude, wt.longitude = float(lat), float(lon)
+        wt.distance_m = float(np.hypot(position[0], position[1]))
+        wt.bearing_deg = float(geodesy.bearing_deg(self.camera.camera_lat, self.camera.camera_lon, lat, lon))
+        wt.expected_error_m = float(self.error_model.expected_error_m(wt.distance_m))

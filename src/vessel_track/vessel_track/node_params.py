@@ -1,0 +1,233 @@
+"""ROS parameter declarations of the fusion stage, and a start-up check of ``--params-file`` arguments.
+
+Imports rclpy only inside the functions that need a node, so the table of parameters (names, defaults,
+descriptions, ranges) can be tested and turned into ``config/parts/fuser.yaml`` without ROS.
+"""
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from vessel_calib.errors import CalibrationError, DataError
+from vessel_track.fuser_settings import FuserSettings, flatten
+
+_INF = 1.0e12
+
+#: name -> (description, float range or None). Defaults come from ``FuserSettings()``.
+FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
+    "distance_model.a": ("Box width = a / depth + b: a in px x m (fitted to hand boxes).", (1e-6, _INF)),
+    "distance_model.b": ("Box width = a / depth + b: b in px.", (-1e4, 1e4)),
+    "distance_model.c": ("Box height = c / depth + d: c in px x m.", (1e-6, _INF)),
+    "distance_model.d": ("Box height = c / depth + d: d in px.", (-1e4, 1e4)),
+    "distance_model.sigma_width_px": ("Robust std of the box-width residuals of the fit, px.", (1e-6, 1e4)),
+    "distance_model.sigma_height_px": ("Robust std of the box-height residuals of the fit, px.", (1e-6, 1e4)),
+    "distance_model.n_points": ("Boxes the distance model was fitted to (informational).", None),
+    "distance_model.source": ("Where the distance model comes from (informational).", None),
+    "fusion.weights_mode": ("fitted (variance-minimising from cue_covariance), paper (0.5/0.25/0.25) or "
+                            "position_only.", None),
+    "fusion.anchor": ("Box reference point along its height: 0 top, 0.5 centre (paper), 1 bottom.", (0.0, 1.0)),
+    "fusion.max_range_m": ("Positions further than this from the camera are rejected, m.", (1.0, 1e6)),
+    "fusion.clip_m": ("Positions are clipped to +-clip_m east and north (paper: 2000), m.", (1.0, 1e6)),
+    "fusion.min_depth_m": ("Points closer than this depth in front of the camera are rejected, m.", (1e-3, 1e4)),
+    "fusion.cue_covariance": ("3x3 covariance (row-major) of the ideal-y errors of the position, width and "
+                              "height cues, px^2 (fitted).", None),
+    "fusion.cue_x_std_px": ("Std of the box reference point's x, ideal px (fitted).", (1e-6, 1e4)),
+    "fusion.cue_n_points": ("Boxes the cue statistics were measured on (informational).", None),
+    "motion.accel_psd": ("World Kalman filter: acceleration noise spectral density, m^2/s^3.", (1e-9, 1e6)),
+    "motion.initial_speed_std": ("Prior std of each velocity component of a new track, m/s.", (1e-6, 1e3)),
+    "motion.max_speed": ("Fitted speeds above this are clipped, m/s.", (1e-3, 1e3)),
+    "motion.gate_chi2": ("Measurements with a larger squared Mahalanobis distance are rejected.", (1e-3, 1e6)),
+    "motion.max_rejections": ("Consecutive rejections after which a track's filter restarts.", None),
+    "motion.max_gap_s": ("A gap between frames longer than this restarts the filters, s.", (1e-3, 1e9)),
+    "motion.manoeuvre_factor": ("A measurement outside the gate is retried with the process noise times this "
+                                "(hard turn or acceleration) before it counts as an outlier; 1 disables.",
+                                (1.0, 1e6)),
+    "selection.confidence_percentile": ("Percentile of detector confidences in the trajectory score (paper 80).",
+                                        (0.0, 100.0)),
+    "selection.min_step_m": ("Path steps shorter than this are not counted, m.", (0.0, 1e6)),
+    "selection.path_noise_sigmas": ("A path step counts once it exceeds this many standard deviations of its "
+                                    "noise (0: the paper's plain path length).", (0.0, 100.0)),
+    "selection.join_max_gap_s": ("Longest gap over which a new track continues an ended one, s.", (0.0, 1e6)),
+    "selection.join_max_overlap_s": ("Pieces may overlap this long in time and still be joined, s.", (0.0, 1e6)),
+    "selection.join_gate_m": ("Join gate: constant part, m.", (0.0, 1e6)),
+    "selection.join_gate_range_frac": ("Join gate: share of the range from the camera.", (0.0, 100.0)),
+    "selection.join_gate_speed_mps": ("Join gate: growth per second of gap, m/s.", (0.0, 1e3)),
+    "selection.max_speed_mps": ("A join implying a faster motion is refused, m/s.", (1e-3, 1e3)),
+    "selection.switch_ratio": ("A challenger must score above current x ratio + margin to take over.", (1.0, 1e3)),
+    "selection.switch_margin": ("See switch_ratio.", (0.0, 1e6)),
+    "selection.switch_hold_s": ("... for this long, s.", (0.0, 1e6)),
+    "selection.reacquire_fraction": ("After the target's track ended, another track needs this share of its score "
+                                     "to take over (for join_max_gap_s).", (0.0, 1.0)),
+    "selection.size_consistency": ("Weight the trajectory score by the share of boxes whose size agrees with "
+                                   "their position for a vessel of the fitted size.", None),
+    "selection.history_length": ("Confidences kept per track for the percentile.", None),
+    "offline.outlier_threshold_px": ("Offline smoothing: screen-y outlier threshold, px (paper 5).", (1e-3, 1e4)),
+    "offline.iterations": ("Offline smoothing passes (paper 5).", None),
+    "offline.adaptive_noise": ("Offline: process noise and measurement-noise scale per trajectory by maximum "
+                               "likelihood of its own measurements.", None),
+    "error_model.kind": ("origin, affine or quantile (how the error model was fitted).", None),
+    "error_model.slope": ("Expected error per metre of distance (paper 0.0555).", (0.0, 100.0)),
+    "error_model.intercept_m": ("Expected error at zero distance, m.", (0.0, 1e6)),
+    "error_model.quantile": ("Quantile of a quantile fit (informational).", (0.0, 1.0)),
+    "error_model.n_points": ("Scored predictions the error model was fitted to (informational).", None),
+    "error_model.source": ("Where the error model comes from (informational).", None),
+}
+
+
+def fuser_parameter_defaults() -> dict:
+    """Flattened default values of every fuser setting."""
+    return flatten(FuserSettings().to_params())
+
+
+def declare_fuser_settings(node) -> FuserSettings:
+    """Declare every fusion parameter on ``node`` (with descriptors) and build the settings from them."""
+    from vessel_calib.node_support import declare_parameter
+
+    values = {}
+    for name, default in fuser_parameter_defaults().items():
+        description, value_range = FUSER_PARAMETERS[name]
+        if isinstance(default, list):
+            default = [float(v) for v in default]
+        float_range = value_range if isinstance(default, float) and value_range is not None else None
+        try:
+            values[name] = declare_parameter(node, name, default, description, float_range=float_range)
+        except Exception as error:  # rclpy's type/range exceptions: report them as a configuration problem
+            raise DataError(f"parameter {name}: {error} (default {default!r}); fix the parameter file") from None
+    return FuserSettings.from_params(values)
+
+
+def params_file_problem(argv: Sequence[str] | None) -> str | None:
+    """Why a ``--params-file`` argument cannot be used (missing, unreadable, not YAML), or None.
+
+    rcl itself would fail on such a file with a traceback; the nodes check first and exit with one line.
+    """
+    import yaml
+
+    args = list(sys.argv if argv is None else argv)
+    for i, arg in enumerate(args):
+        if arg != "--params-file":
+            continue
+        if i + 1 >= len(args):
+            return "--params-file needs a file name"
+        path = Path(args[i + 1])
+        if not path.is_file():
+            return f"parameter file {path} does not exist; give the calibration/parameter YAML written by " \
+                   f"`calibrate` (e.g. config/aitas.yaml)"
+        try:
+            document = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError) as error:
+            return f"cannot read parameter file {path}: {error}"
+        except yaml.YAMLError as error:
+            return f"parameter file {path} is not valid YAML ({str(error).splitlines()[0]}); fix or regenerate it"
+        if not isinstance(document, dict):
+            return f"parameter file {path} is not a ROS parameter file (expected '/**: ros__parameters: ...')"
+    return None
+
+
+def main_with_checks(node_class, argv: Sequence[str] | None = None) -> int:
+    """Check ``--params-file`` arguments, then run the node with ``vessel_calib.node_support.run_node``."""
+    from vessel_calib.node_support import run_node
+
+    args = list(sys.argv if argv is None else argv)
+    problem = params_file_problem(args)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+    try:
+        return run_node(node_class, args)
+    except CalibrationError as error:  # raised before the node exists (e.g. by rcl argument parsing)
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+
+FUSER_TOPICS = {
+    "input_topic": ("/vessel/tracks/screen", "Screen-space tracks from the tracker (VesselTrackArray)."),
+    "output_topic": ("/vessel/tracks", "Tracks with world position, covariance, lat/lon (VesselTrackArray)."),
+    "qos_depth": (10, "Queue depth of the reliable input and output."),
+}
+
+GPS_PUBLISHER_PARAMETERS = {
+    "input_topic": ("/vessel/tracks", "World tracks from the fuser (VesselTrackArray)."),
+    "fix_topic": ("/vessel/fix", "NavSatFix of the vessel of interest."),
+    "fixes_topic": ("/vessel/fixes", "Every vessel with a position (VesselTrackArray); empty string: off."),
+    "frame_id": ("vessel_of_interest", "frame_id of the NavSatFix (the tracked vessel)."),
+    "max_coast_s": (12.0, "A target not seen by the detector for longer than this is published as NO_FIX, s."),
+    "covariance_mode": ("sum", "Horizontal covariance: sum (filter + error model), filter, error_model or max."),
+    "covariance_type": ("known", "position_covariance_type: known or approximated."),
+    "altitude_m": (float("nan"), "Altitude above the WGS-84 ellipsoid to report (.nan: unknown)."),
+    "altitude_variance_m2": (1.0e4, "Variance of the altitude in the covariance, m^2."),
+    "publish_no_fix": (True, "Publish STATUS_NO_FIX messages for frames without a target."),
+    "qos_depth": (10, "Queue depth of the reliable topics."),
+}
+
+
+def _yaml_value(value) -> str:
+    import math
+
+    import yaml
+
+    if isinstance(value, float) and math.isnan(value):
+        return ".nan"
+    if isinstance(value, list):
+        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+    if isinstance(value, float):
+        return repr(round(value, 10))
+    return yaml.safe_dump(value, default_flow_style=True, width=10000).strip().removesuffix("...").strip()
+
+
+def render_fuser_yaml(settings: FuserSettings) -> str:
+    """``config/parts/fuser.yaml``: the fuser block with every parameter and its description as a comment."""
+    lines = ["# Fuser node (vessel_track fuser): screen tracks -> sea-plane tracks. Written by",
+             "# `python -m vessel_track.node_params render`; distance_model/fusion.cue_* from",
+             "# `python -m vessel_track.distance_model fit`, error_model from",
+             "# `python -m vessel_track.error_model fit`.",
+             "fuser:", "  ros__parameters:"]
+    for name, (default, description) in FUSER_TOPICS.items():
+        lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
+    nested = settings.to_params()
+    for block, values in nested.items():
+        lines.append(f"    {block}:")
+        for key, value in values.items():
+            description = FUSER_PARAMETERS[f"{block}.{key}"][0]
+            lines.append(f"      {key}: {_yaml_value(value)}  # {description}")
+    return "\n".join(lines) + "\n"
+
+
+def render_gps_publisher_yaml() -> str:
+    """``config/parts/gps_publisher.yaml`` with every parameter and its description."""
+    lines = ["# GPS publisher node (vessel_track gps_publisher): the vessel of interest as sensor_msgs/NavSatFix.",
+             "gps_publisher:", "  ros__parameters:"]
+    for name, (default, description) in GPS_PUBLISHER_PARAMETERS.items():
+        lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``render --params FILE --out config/parts/``: write the commented fuser and gps_publisher part files."""
+    import argparse
+
+    from vessel_calib.errors import VesselError
+    from vessel_calib.params import atomic_write_text
+    from vessel_track.fuser_settings import load_fuser_settings
+
+    parser = argparse.ArgumentParser(prog="python -m vessel_track.node_params")
+    sub = parser.add_subparsers(dest="command", required=True)
+    render = sub.add_parser("render", help="write config/parts/fuser.yaml and gps_publisher.yaml")
+    render.add_argument("--params", type=Path, default=None, help="parameter YAML whose fuser block to use "
+                                                                  "(default: the built-in defaults)")
+    render.add_argument("--out", type=Path, required=True, help="folder for fuser.yaml and gps_publisher.yaml")
+    args = parser.parse_args(argv)
+    try:
+        settings = load_fuser_settings(args.params)
+        atomic_write_text(args.out / "fuser.yaml", render_fuser_yaml(settings))
+        atomic_write_text(args.out / "gps_publisher.yaml", render_gps_publisher_yaml())
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"written: {args.out / 'fuser.yaml'}, {args.out / 'gps_publisher.yaml'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

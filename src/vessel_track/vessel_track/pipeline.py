@@ -1,0 +1,553 @@
+"""The whole post-processing chain without ROS: detections -> tracker -> fusion -> selection -> positions.
+
+    python -m vessel_track.pipeline --data DIR --videos 13-17 --detections labels|FILE.csv --out DIR
+        [--mode online|offline] [--calib FILE.yaml] [--params FILE.yaml] [--no-eval]
+
+writes ``predictions.csv`` (``video,t_utc_s,lat,lon``: the vessel of interest), ``tracks.csv`` (every track,
+every frame) and then scores them (``vessel_track.evaluation``: ``summary.json``, ``scores.csv``, plots).
+
+Detections: ``labels`` = the hand-labelled boxes of the vessel of interest (primary pass, score 1.0), one
+frame per labelled frame; ``FILE.csv`` = the detector's output, columns ``video,frame,x1,y1,x2,y2,score,class_id``
+(full-resolution pixels), where every frame of ``frames.csv`` of the chosen videos is a frame of the run
+(frames without a row had no detection).
+
+Modes:
+
+* ``online``: exactly what the nodes publish frame by frame: ``MultiTargetTracker`` -> ``TrackFuser`` (fusion,
+  world Kalman filter per track, online target selection with hysteresis); a prediction for every frame where
+  the target has a position (a coasting target for at most ``--max-coast`` seconds).
+* ``offline``: the same tracks, then the paper's recorded-data pass: trajectories joined and scored over the
+  whole video, the best one smoothed (Kalman + RTS with outlier masking, 5 px / 5 passes) and predicted at
+  every frame of its time span.
+
+Each video is a separate run (its own tracker), as each is a separate recording.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import os
+import sys
+import tempfile
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vessel_calib import geodesy
+from vessel_calib.errors import DataError, VesselError
+from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
+from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.selection import Trajectory, select_target
+from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
+
+MODES = ("online", "offline")
+SCREEN_SOURCES = ("filtered", "measured")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Inputs
+
+
+def open_dataset(data_dir: Path | None):
+    """The dataset at ``data_dir`` (default: $VESSEL_DATA or ../shared/aitas); DataError if none."""
+    from vessel_calib.dataset import Dataset, default_data_dir
+
+    if data_dir is None:
+        data_dir = default_data_dir()
+        if data_dir is None:
+            raise DataError("no dataset: pass --data DIR or set VESSEL_DATA (default ../shared/aitas is absent)")
+    return Dataset(data_dir)
+
+
+def default_calibration_path() -> Path | None:
+    """``config/aitas_camera.yaml`` of the project, if it exists (the project's fitted calibration)."""
+    from vessel_calib.dataset import repo_root
+
+    path = repo_root() / "config" / "aitas_camera.yaml"
+    return path if path.is_file() else None
+
+
+def default_params_path() -> Path | None:
+    """The project's parameter file with a fuser block: config/aitas.yaml, else config/parts/fuser.yaml."""
+    import yaml
+
+    from vessel_calib.dataset import repo_root
+
+    for candidate in (repo_root() / "config" / "aitas.yaml", repo_root() / "config" / "parts" / "fuser.yaml"):
+        try:
+            document = yaml.safe_load(candidate.read_text(encoding="utf-8")) if candidate.is_file() else None
+        except (OSError, yaml.YAMLError):
+            document = None
+        if isinstance(document, dict) and isinstance(document.get("fuser"), dict):
+            return candidate
+    return None
+
+
+def load_camera(calib: Path | None, dataset=None):
+    """(camera model, description) for a run.
+
+    ``calib`` if given; else the project's calibration if it belongs to this dataset's camera (same position
+    within 10 m); else the dataset's paper-corrected calibration.
+    """
+    from vessel_calib.params import load_camera_yaml
+
+    if calib is not None:
+        return load_camera_yaml(calib), str(calib)
+    default = default_calibration_path()
+    if default is not None:
+        camera = load_camera_yaml(default)
+        if dataset is None or geodesy.haversine_m(camera.camera_lat, camera.camera_lon, dataset.camera_lat,
+                                                  dataset.camera_lon) < 10.0:
+            return camera, str(default)
+    if dataset is None:
+        raise DataError("no calibration: pass --calib FILE.yaml")
+    return dataset.camera_model(), f"{dataset.path / 'camera.json'} (paper, corrected)"
+
+
+@dataclass
+class DetectionFrame:
+    """The detections of one frame."""
+
+    video: int
+    frame: int
+    stamp: float
+    boxes: np.ndarray    # (N, 4) x1, y1, x2, y2 px
+    scores: np.ndarray   # (N,)
+
+
+def label_detections(dataset, videos) -> list[DetectionFrame]:
+    """The hand-labelled primary boxes as detections (score 1), one frame per labelled frame."""
+    grouped: dict[tuple[int, int], list] = defaultdict(list)
+    for record in dataset.labels(videos, primary_only=True):
+        grouped[(record.video, record.frame)].append(record)
+    frames = []
+    for (video, frame), records in sorted(grouped.items()):
+        boxes = np.array([[r.x1, r.y1, r.x2, r.y2] for r in records], dtype=float)
+        frames.append(DetectionFrame(video, frame, records[0].stamp, boxes, np.ones(len(records))))
+    if not frames:
+        raise DataError(f"{dataset.path}: no labelled boxes in videos {videos}; use --detections FILE.csv")
+    return frames
+
+
+DETECTION_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score")
+
+
+def csv_detections(path: Path, dataset, videos) -> list[DetectionFrame]:
+    """Detector output CSV -> frames; every frames.csv frame of ``videos`` is a frame (empty if no rows).
+
+    A row for a frame not in frames.csv is timed by linear interpolation of frame numbers within its video.
+    Rows with non-numeric values raise DataError naming the row.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such detections file; write one with `python -m vessel_detect.detect_cli "
+                        f"run ... --out FILE.csv` or use --detections labels")
+    wanted = None if videos is None else set(videos)
+    rows: dict[tuple[int, int], list] = defaultdict(list)
+    with path.open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        missing = [c for c in DETECTION_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise DataError(f"{path}: missing column(s) {', '.join(missing)}; expected "
+                            f"video,frame,x1,y1,x2,y2,score,class_id")
+        for number, row in enumerate(reader, start=2):
+            try:
+                video, frame = int(row["video"]), int(row["frame"])
+                values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
+            except (TypeError, ValueError):
+                raise DataError(f"{path}, row {number}: video/frame/x1..y2/score must be numbers") from None
+            if wanted is not None and video not in wanted:
+                continue
+            rows[(video, frame)].append(values)
+    frame_records = dataset.frames(videos)
+    stamps = {(f.video, f.frame): f.stamp for f in frame_records}
+    keys = set(stamps) | set(rows)
+    by_video: dict[int, list] = defaultdict(list)
+    for f in frame_records:
+        by_video[f.video].append((f.frame, f.stamp))
+    frames = []
+    for video, frame in sorted(keys):
+        stamp = stamps.get((video, frame))
+        if stamp is None:
+            known = sorted(by_video.get(video, []))
+            if len(known) < 2:
+                raise DataError(f"{path}: video {video} frame {frame} is not in frames.csv and the video has too "
+                                f"few frames to time it")
+            stamp = float(np.interp(frame, [k[0] for k in known], [k[1] for k in known],
+                                    left=math.nan, right=math.nan))
+            if not math.isfinite(stamp):
+                f0, t0 = known[0] if frame < known[0][0] else known[-2]
+                f1, t1 = known[1] if frame < known[0][0] else known[-1]
+                stamp = t0 + (frame - f0) * (t1 - t0) / (f1 - f0)
+        values = np.array(rows.get((video, frame), []), dtype=float).reshape(-1, 5)
+        frames.append(DetectionFrame(video, frame, stamp, values[:, :4], values[:, 4]))
+    return frames
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Running
+
+
+def screen_track_of(state, source: str = "filtered") -> ScreenTrack:
+    """A tracker ``TrackState`` as the fuser sees it.
+
+    ``filtered``: the tracker's filtered box (what the tracker node publishes); ``measured``: the raw associated
+    detection when there is one.
+    """
+    updated = state.measured_center is not None
+    if source == "measured" and updated:
+        center, size = np.asarray(state.measured_center, float), np.asarray(state.measured_size, float)
+    else:
+        center, size = np.asarray(state.center, float), np.asarray(state.size, float)
+    return ScreenTrack(track_id=state.track_id, status=int(state.status), center=center, size=size,
+                       confidence=float(state.confidence), updated=updated,
+                       detection_count=int(state.detection_count), first_seen=float(state.first_seen),
+                       last_seen=float(state.last_seen), center_cov=np.asarray(state.center_cov, float),
+                       velocity_px=np.asarray(state.velocity, float))
+
+
+@dataclass
+class Prediction:
+    """One predicted position of the vessel of interest."""
+
+    video: int
+    stamp: float
+    lat: float
+    lon: float
+    x: float
+    y: float
+    track_id: str
+    measured: bool
+
+
+@dataclass
+class TrackRow:
+    """One track in one frame (tracks.csv)."""
+
+    video: int
+    frame: int
+    stamp: float
+    world: WorldTrack
+
+
+@dataclass
+class VideoResult:
+    """Everything one video produced."""
+
+    video: int
+    predictions: list[Prediction] = field(default_factory=list)
+    track_rows: list[TrackRow] = field(default_factory=list)
+    target_members: list[str] = field(default_factory=list)
+    counts: dict = field(default_factory=dict)
+
+
+@dataclass
+class PipelineConfig:
+    """How to run: mode, which screen box the fuser sees, how long a coasting target is still reported."""
+
+    mode: str = "online"
+    screen_source: str | None = None
+    """``filtered`` (the tracker's box, what the tracker node publishes) or ``measured`` (the associated
+    detection); None: ``filtered`` online, ``measured`` offline (recorded data has the raw detections, and the
+    smoother should see independent measurements rather than the tracker's already filtered boxes)."""
+    max_coast_s: float = 12.0
+    tracker: object = None   # TrackerConfig; None: the tracker's defaults
+    settings: FuserSettings = field(default_factory=FuserSettings)
+
+    def __post_init__(self) -> None:
+        """Validate."""
+        if self.mode not in MODES:
+            raise DataError(f"pipeline: mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.screen_source is None:
+            self.screen_source = "measured" if self.mode == "offline" else "filtered"
+        if self.screen_source not in SCREEN_SOURCES:
+            raise DataError(f"pipeline: screen_source must be one of {', '.join(SCREEN_SOURCES)}")
+
+
+def run_video(frames: list[DetectionFrame], camera, config: PipelineConfig) -> VideoResult:
+    """Run one video's frames (sorted by stamp here) through tracker, fuser and selection."""
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+
+    if not frames:
+        raise DataError("pipeline: no frames to run")
+    frames = sorted(frames, key=lambda f: f.stamp)
+    tracker = MultiTargetTracker(config.tracker if config.tracker is not None else TrackerConfig())
+
+    def screen_frames():
+        for frame in frames:
+            states = tracker.update(frame.stamp, frame.boxes, frame.scores)
+            yield frame.frame, frame.stamp, [screen_track_of(st, config.screen_source) for st in states]
+
+    result = run_screen_tracks(frames[0].video, screen_frames(), camera, config)
+    result.counts.update({f"tracker.{k}": v for k, v in tracker.counters.as_dict().items()})
+    return result
+
+
+def run_screen_tracks(video: int, screen_frames, camera, config: PipelineConfig) -> VideoResult:
+    """Fuse, select (and in offline mode smooth) a sequence of ``(frame, stamp, [ScreenTrack])`` in stamp order.
+
+    The part of the chain after the tracker: what the fuser node does online, plus the offline pass. Use it on
+    screen tracks recorded from ``/vessel/tracks/screen`` (``fuser_node.screen_track_from_msg``) to get the
+    offline smoothing of a recorded run.
+    """
+    s = config.settings
+    fuser = TrackFuser(camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection, s.error_model)
+    result = VideoResult(video)
+    stamps: list[float] = []
+    for frame, stamp, screen_tracks in screen_frames:
+        stamps.append(stamp)
+        world = fuser.update(stamp, screen_tracks)
+        for wt in world:
+            result.track_rows.append(TrackRow(video, frame, stamp, wt))
+        target = next((wt for wt in world if wt.is_target and wt.has_world), None)
+        if target is not None and stamp - target.screen.last_seen <= config.max_coast_s:
+            result.predictions.append(Prediction(video, stamp, target.latitude, target.longitude,
+                                                 float(target.position[0]), float(target.position[1]),
+                                                 target.screen.track_id, target.screen.updated))
+    result.counts = {**{f"fuser.{k}": v for k, v in fuser.counts.items()},
+                     "selection.switches": fuser.selector.switches, "selection.joins": fuser.selector.joins}
+    if config.mode == "offline":
+        _offline_pass(result, stamps, camera, config)
+    return result
+
+
+def trajectories_of(rows: list[TrackRow], motion=None) -> tuple[list[Trajectory], dict[str, dict]]:
+    """Per track: its trajectory and its measurements.
+
+    The trajectory holds the positions at measured frames for scoring and joining: RTS-smoothed with ``motion``
+    when given (path lengths of raw or causally filtered positions are inflated by their noise), else the online
+    filter's; the measurements hold the fused position, covariance and screen point (for the smoother).
+    """
+    per_track: dict[str, dict] = defaultdict(lambda: defaultdict(list))
+    for row in rows:
+        wt = row.world
+        if wt.measured_position is None or not wt.has_world:
+            continue
+        data = per_track[wt.screen.track_id]
+        data["stamps"].append(row.stamp)
+        data["filtered"].append(wt.position)
+        data["filtered_cov"].append(wt.position_covariance)
+        data["confidences"].append(wt.screen.confidence)
+        data["measured"].append(wt.measured_position)
+        data["covariance"].append(wt.measured_covariance)
+        data["screen"].append(wt.measured_screen)
+        data["consistent"].append(np.nan if wt.size_consistent is None else float(wt.size_consistent))
+    trajectories = []
+    for tid, d in per_track.items():
+        positions, covariances = np.array(d["filtered"]), np.array(d["filtered_cov"])
+        if motion is not None and len(d["stamps"]) >= 3:
+            smoothed = rts_smooth(np.array(d["stamps"]), np.array(d["measured"]), np.array(d["covariance"]), motion)
+            positions, covariances = smoothed.positions, smoothed.covariances[:, :2, :2]
+        trajectories.append(Trajectory(tid, d["stamps"], positions, d["confidences"], consistent=d["consistent"],
+                                       covariances=covariances))
+    return trajectories, per_track
+
+
+def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config: PipelineConfig) -> None:
+    s = config.settings
+    trajectories, measurements = trajectories_of(result.track_rows, s.motion)
+    result.predictions = []
+    if not trajectories:
+        return
+    target, _ = select_target(trajectories, s.selection)
+    result.target_members = list(target.members)
+    stamps, z, R, screen = [], [], [], []
+    for member in target.members:
+        m = measurements[member]
+        keep = [i for i, t in enumerate(m["stamps"]) if not stamps or t > stamps[-1]]
+        stamps += [m["stamps"][i] for i in keep]
+        z += [m["measured"][i] for i in keep]
+        R += [m["covariance"][i] for i in keep]
+        screen += [m["screen"][i] for i in keep]
+    measured_t = np.array(stamps)
+    grid = np.array(sorted({t for t in frame_stamps if measured_t[0] <= t <= measured_t[-1]} | set(stamps)))
+    index = {t: i for i, t in enumerate(grid)}
+    Z = np.full((grid.size, 2), np.nan)
+    RR = np.tile(np.eye(2), (grid.size, 1, 1))
+    screen_y = np.full(grid.size, np.nan)
+    for t, zi, Ri, si in zip(stamps, z, R, screen, strict=True):
+        Z[index[t]] = zi
+        RR[index[t]] = Ri
+        screen_y[index[t]] = si[1]
+
+    def residual_px(positions: np.ndarray) -> np.ndarray:
+        _, ys, ok = camera.world_to_screen(positions[:, 0], positions[:, 1])
+        return np.where(np.asarray(ok) & np.isfinite(screen_y), np.asarray(ys) - screen_y, np.nan)
+
+    motion = s.motion
+    if s.offline.adaptive_noise:
+        q, r_scale = most_likely_noise(grid, Z, RR, motion, r_scale_candidates=(0.25, 0.5, 1.0, 2.0))
+        motion = dataclasses.replace(motion, accel_psd=q)
+        RR = RR * r_scale
+    smoothed = smooth_with_outlier_masking(grid, Z, RR, residual_px, s.offline.outlier_threshold_px,
+                                           s.offline.iterations, motion)
+    clip = s.fusion.clip_m
+    members = set(target.members)
+    for i, t in enumerate(grid):
+        x, y = np.clip(smoothed.positions[i], -clip, clip)
+        if math.hypot(x, y) > s.fusion.max_range_m:
+            continue
+        lat, lon = geodesy.local_to_gps(x, y, camera.camera_lat, camera.camera_lon)
+        result.predictions.append(Prediction(result.video, float(t), float(lat), float(lon), float(x), float(y),
+                                             "+".join(target.members), bool(np.isfinite(Z[i, 0]))))
+    for row in result.track_rows:
+        row.world.is_target = row.world.screen.track_id in members
+
+
+def run(frames: list[DetectionFrame], camera, config: PipelineConfig) -> list[VideoResult]:
+    """Run every video of ``frames`` separately."""
+    by_video: dict[int, list[DetectionFrame]] = defaultdict(list)
+    for frame in frames:
+        by_video[frame.video].append(frame)
+    return [run_video(by_video[v], camera, config) for v in sorted(by_video)]
+
+
+def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: list[int],
+                        config: PipelineConfig) -> list[VideoResult]:
+    """Run each video with everything fitted on the other training videos: an honest score on training data.
+
+    For each video of ``frames``: the camera is calibrated (``vessel_calib.calibration.calibrate``), the
+    distance model fitted and the cue noise measured (itself leave-one-out) on the labelled training videos
+    other than this one; the rest of ``config.settings`` is kept. Used to fit the error model on scores the
+    calibration has not seen.
+    """
+    from vessel_calib.calibration import calibrate
+    from vessel_track.distance_model import cross_validated_cue_statistics, fit_distance_model, training_pairs
+
+    by_video: dict[int, list[DetectionFrame]] = defaultdict(list)
+    for frame in frames:
+        by_video[frame.video].append(frame)
+    results = []
+    for video in sorted(by_video):
+        others = [v for v in train_videos if v != video]
+        screen, gps = dataset.calibration_pairs(others)
+        camera = calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size,
+                           dataset.center).model
+        boxes, world = training_pairs(dataset, camera, others)
+        settings = dataclasses.replace(config.settings, distance_model=fit_distance_model(camera, boxes, world),
+                                       cue_stats=cross_validated_cue_statistics(dataset, others))
+        results.append(run_video(by_video[video], camera, dataclasses.replace(config, settings=settings)))
+    return results
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Outputs
+
+
+def _seconds_of_day(stamp: float) -> float:
+    return stamp % 86400.0
+
+
+def _atomic_lines(path: Path, lines: list[str]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w") as out:
+            out.write("\n".join(lines) + "\n")
+        os.replace(temp, path)
+    except BaseException:
+        Path(temp).unlink(missing_ok=True)
+        raise
+
+
+def write_predictions_csv(path: Path, results: list[VideoResult]) -> None:
+    """``video,t_utc_s,lat,lon`` for the vessel of interest."""
+    lines = ["video,t_utc_s,lat,lon"]
+    for result in results:
+        for p in result.predictions:
+            lines.append(f"{p.video},{_seconds_of_day(p.stamp):.3f},{p.lat:.8f},{p.lon:.8f}")
+    _atomic_lines(Path(path), lines)
+
+
+TRACK_COLUMNS = ("video,frame,t_utc_s,track_id,status,is_target,score,confidence,updated,has_world,x_east_m,"
+                 "y_north_m,lat,lon,distance_m,bearing_deg,expected_error_m,measured_x_m,measured_y_m")
+
+
+def write_tracks_csv(path: Path, results: list[VideoResult]) -> None:
+    """Every track in every frame, with its filtered position and this frame's fused measurement."""
+    lines = [TRACK_COLUMNS]
+
+    def num(value, spec=".3f"):
+        return format(value, spec) if value is not None and math.isfinite(value) else ""
+
+    for result in results:
+        for row in result.track_rows:
+            wt = row.world
+            mx, my = (wt.measured_position if wt.measured_position is not None else (math.nan, math.nan))
+            lines.append(",".join([
+                str(row.video), str(row.frame), f"{_seconds_of_day(row.stamp):.3f}", wt.screen.track_id,
+                str(int(wt.screen.status)), str(int(wt.is_target)), num(wt.score), num(wt.screen.confidence),
+                str(int(wt.screen.updated)), str(int(wt.has_world)), num(wt.position[0]), num(wt.position[1]),
+                num(wt.latitude, ".8f"), num(wt.longitude, ".8f"), num(wt.distance_m), num(wt.bearing_deg, ".2f"),
+                num(wt.expected_error_m), num(mx), num(my)]))
+    _atomic_lines(Path(path), lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line entry point."""
+    parser = argparse.ArgumentParser(prog="python -m vessel_track.pipeline", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=None, help="dataset folder (default $VESSEL_DATA or "
+                                                                "../shared/aitas)")
+    parser.add_argument("--videos", default="13-17", help="videos to run (default 13-17)")
+    parser.add_argument("--detections", default="labels", help="'labels' or a detector CSV "
+                                                               "(video,frame,x1,y1,x2,y2,score,class_id)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--mode", choices=MODES, default="online", help="online (as the nodes) or offline "
+                                                                        "(plus the smoothing pass)")
+    parser.add_argument("--screen-source", choices=SCREEN_SOURCES, default=None,
+                        help="box the fuser sees: the tracker's filtered box (as the nodes) or the raw detection "
+                             "(default: filtered online, measured offline)")
+    parser.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: "
+                                                                 "config/aitas_camera.yaml, else camera.json)")
+    parser.add_argument("--params", type=Path, default=None, help="parameter YAML with the fuser block "
+                                                                  "(default: config/aitas.yaml or "
+                                                                  "config/parts/fuser.yaml)")
+    parser.add_argument("--max-coast", type=float, default=12.0, help="report a coasting target this long, s")
+    parser.add_argument("--leave-one-out", metavar="TRAIN_VIDEOS", default=None,
+                        help="calibrate and fit the fusion for each video on these training videos minus that one "
+                             "(e.g. 7-12 with --videos 7-12): out-of-sample scores for the error model fit")
+    parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
+    parser.add_argument("--no-plots", action="store_true", help="score without plots")
+    args = parser.parse_args(argv)
+    try:
+        from vessel_calib.dataset import parse_videos
+
+        dataset = open_dataset(args.data)
+        videos = parse_videos(args.videos)
+        camera, camera_source = load_camera(args.calib, dataset)
+        params_path = args.params if args.params is not None else default_params_path()
+        settings = load_fuser_settings(params_path)
+        if args.detections == "labels":
+            frames = label_detections(dataset, videos)
+        else:
+            frames = csv_detections(Path(args.detections), dataset, videos)
+        config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
+        if args.leave_one_out:
+            results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config)
+            camera_source = f"calibrated per video on {args.leave_one_out} minus that video"
+        else:
+            results = run(frames, camera, config)
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_predictions_csv(args.out / "predictions.csv", results)
+        write_tracks_csv(args.out / "tracks.csv", results)
+        print(f"{sum(len(r.predictions) for r in results)} predictions from {len(frames)} frames "
+              f"({args.mode}, camera: {camera_source}, parameters: {params_path or 'defaults'}) -> {args.out}")
+        if not args.no_eval:
+            from vessel_track.evaluation import evaluate, format_table
+
+            coverage_frames = "labels" if args.detections == "labels" else "frames"
+            summary = evaluate(args.out / "predictions.csv", dataset.path, videos, args.out, args.calib,
+                               coverage_frames, not args.no_plots)
+            print(format_table(summary))
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

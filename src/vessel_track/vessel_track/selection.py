@@ -1,0 +1,576 @@
+"""Which track is the vessel of interest: the paper's trajectory score, trajectory joining, hysteresis.
+
+The paper scores every trajectory as ``score = c_0.8 * log(l)``: the 80th percentile of the detector
+confidences of its points times the log of its path length in metres on the sea plane, and takes the best
+one; a trajectory cut in the middle (a missed stretch, an occlusion) is joined with the pieces before and
+after it by their timestamps. Both exist here twice:
+
+* offline (``join_trajectories``, ``select_target``): for recorded data, over whole trajectories; pieces are
+  joined when they do not overlap in time (beyond ``max_overlap_s``), the gap is short, and the end of one
+  extrapolated to the start of the next lands within a gate;
+* online (``OnlineTargetSelector``): a running score per track, a track that starts where a just-ended
+  track would be now inherits that track's history (the online join), and the target changes only when a
+  challenger beats it by a margin for ``switch_hold_s`` seconds, so the vessel of interest does not flip
+  every frame between two similar tracks.
+
+Path length uses ``log(max(l, 1 m))``, so a trajectory that does not move (a mooring post detected as a
+boat) scores 0 rather than a negative number. The length is measured on filtered positions (online: the world
+filter's; offline: the smoothed trajectory), and only motion that stands out of the position covariance counts
+(``path_noise_sigmas``): the noise of per-frame positions (metres to hundreds of metres per pixel near the
+horizon) would otherwise make up most of the length of a distant vessel's path and of a standing object's.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from vessel_calib.errors import DataError
+
+_FORBIDDEN = 1e9
+
+
+@dataclass(frozen=True)
+class SelectionConfig:
+    """Parameters of the trajectory score, the joining and the online hysteresis.
+
+    confidence_percentile: percentile of the detector confidences in the score (the paper: 80).
+    min_step_m: path steps shorter than this are not added (filters jitter of a standing object).
+    path_noise_sigmas: a path step counts once the displacement from the last counted point exceeds this many
+        standard deviations of it (from the position covariances), so position noise does not count as travel
+        while slow steady motion still adds up (0: the paper's plain length).
+    join_max_gap_s: longest time between the end of one piece and the start of the next to join them.
+    join_max_overlap_s: pieces may overlap this long (a track coasting on while its successor starts).
+    join_gate_m, join_gate_range_frac, join_gate_speed_mps: the gate around the extrapolated end:
+        gate = join_gate_m + join_gate_range_frac * range + join_gate_speed_mps * gap.
+    max_speed_mps: a join implying a faster motion is refused.
+    switch_ratio, switch_margin: a challenger must score above ``current * ratio + margin`` ...
+    switch_hold_s: ... for this long before it becomes the target.
+    reacquire_fraction: for ``join_max_gap_s`` after the target's track ended, another track becomes the target
+        only with at least this share of the lost target's score (so a sailboat does not inherit the role the
+        moment the vessel of interest leaves the view; the vessel itself is re-acquired by joining).
+    size_consistency: multiply the score by the share of the trajectory's boxes whose size agrees with their
+        position for a vessel of the fitted size (Laplace-smoothed: (k + 1) / (n + 2)). The distance model is
+        fitted to the vessel of interest, so sailboats, ferries and clutter agree less often; with a detector
+        that is not trained on the vessel of interest this is most of what tells it apart.
+    history_length: confidences kept per track for the percentile.
+    """
+
+    confidence_percentile: float = 80.0
+    min_step_m: float = 0.0
+    path_noise_sigmas: float = 2.0
+    join_max_gap_s: float = 30.0
+    join_max_overlap_s: float = 0.0
+    join_gate_m: float = 30.0
+    join_gate_range_frac: float = 0.15
+    join_gate_speed_mps: float = 3.0
+    max_speed_mps: float = 25.0
+    switch_ratio: float = 1.0
+    switch_margin: float = 0.3
+    switch_hold_s: float = 8.0
+    reacquire_fraction: float = 0.9
+    size_consistency: bool = False
+    history_length: int = 1000
+
+    def __post_init__(self) -> None:
+        """Validate the fields."""
+        if not 0 <= self.confidence_percentile <= 100:
+            raise DataError(f"selection: confidence_percentile must be in [0, 100], got {self.confidence_percentile}")
+        if not 0 <= self.reacquire_fraction <= 1:
+            raise DataError(f"selection: reacquire_fraction must be in [0, 1], got {self.reacquire_fraction!r}")
+        for name in ("min_step_m", "path_noise_sigmas", "join_max_gap_s", "join_max_overlap_s", "join_gate_m",
+                     "join_gate_range_frac", "join_gate_speed_mps", "switch_margin", "switch_hold_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise DataError(f"selection: {name} must be a finite number >= 0, got {value!r}")
+        if not (math.isfinite(self.max_speed_mps) and self.max_speed_mps > 0):
+            raise DataError(f"selection: max_speed_mps must be > 0, got {self.max_speed_mps!r}")
+        if not (math.isfinite(self.switch_ratio) and self.switch_ratio >= 1):
+            raise DataError(f"selection: switch_ratio must be >= 1, got {self.switch_ratio!r}")
+        if self.history_length < 1:
+            raise DataError(f"selection: history_length must be >= 1, got {self.history_length!r}")
+
+
+def path_length_m(positions, min_step_m: float = 0.0, covariances=None, noise_sigmas: float = 0.0) -> float:
+    """Sum of the steps between consecutive positions (N, 2), skipping NaN rows and steps below min_step_m.
+
+    With ``covariances`` (N, 2, 2) and ``noise_sigmas`` > 0 only significant motion counts: a step is taken from
+    the last counted point to the first later point that is more than ``noise_sigmas`` standard deviations of
+    their difference away from it (``significant_step``), so slow but steady motion adds up while jitter does not.
+    """
+    p = np.asarray(positions, dtype=float).reshape(-1, 2)
+    keep = np.all(np.isfinite(p), axis=1)
+    if keep.sum() < 2:
+        return 0.0
+    total = 0.0
+    idx = np.flatnonzero(keep)
+    anchor = idx[0]
+    for b in idx[1:]:
+        if covariances is not None and noise_sigmas > 0:
+            step = significant_step(p[anchor], p[b], covariances[anchor], covariances[b], noise_sigmas)
+        else:
+            step = float(np.hypot(*(p[b] - p[anchor])))
+        if step > 0 and step >= min_step_m:
+            total += step
+            anchor = b
+    return total
+
+
+def significant_step(p0, p1, cov0, cov1, noise_sigmas: float) -> float:
+    """Length of the step p0 -> p1 if it exceeds ``noise_sigmas`` standard deviations of it, else 0.
+
+    Near the horizon a pixel is tens to hundreds of metres: the positions of a distant sailboat jitter by more
+    than the vessel of interest moves. Counting a step only once it stands out of the covariances keeps that
+    jitter out of the path length.
+    """
+    d = np.asarray(p1, dtype=float) - np.asarray(p0, dtype=float)
+    length = float(np.hypot(*d))
+    if length == 0.0:
+        return 0.0
+    u = d / length
+    variance = float(u @ (np.asarray(cov0, dtype=float) + np.asarray(cov1, dtype=float)) @ u)
+    if not math.isfinite(variance) or variance < 0:
+        return length
+    return length if length > noise_sigmas * math.sqrt(variance) else 0.0
+
+
+def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consistent: int | None = None,
+                     known: int = 0) -> float:
+    """The paper's ``c_0.8 * log(l)`` with ``log(max(l, 1))``; 0 for no confidences.
+
+    With ``consistent`` given: times ``(consistent + 1) / (known + 2)``, the smoothed share of boxes whose size
+    agrees with the fitted vessel size (``SelectionConfig.size_consistency``).
+    """
+    c = np.asarray(confidences, dtype=float).reshape(-1)
+    c = c[np.isfinite(c)]
+    if c.size == 0 or not math.isfinite(path_m):
+        return 0.0
+    score = float(np.percentile(c, percentile) * math.log(max(path_m, 1.0)))
+    if consistent is not None:
+        score *= (consistent + 1.0) / (known + 2.0)
+    return score
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Offline
+
+
+@dataclass
+class Trajectory:
+    """A track's (or a joined chain's) measured points on the sea plane, sorted by time."""
+
+    track_id: str
+    stamps: np.ndarray          # (N,)
+    positions: np.ndarray       # (N, 2) metres
+    confidences: np.ndarray     # (N,)
+    members: list[str] = field(default_factory=list)
+    consistent: np.ndarray | None = None   # (N,) 1 / 0: box size agrees with the fitted vessel size, NaN unknown
+    covariances: np.ndarray | None = None  # (N, 2, 2) position covariances, m^2 (for the significant path)
+
+    def __post_init__(self) -> None:
+        """Sort by time and check shapes."""
+        self.stamps = np.asarray(self.stamps, dtype=float).reshape(-1)
+        self.positions = np.asarray(self.positions, dtype=float).reshape(-1, 2)
+        self.confidences = np.asarray(self.confidences, dtype=float).reshape(-1)
+        self.consistent = (np.full(self.stamps.size, np.nan) if self.consistent is None
+                           else np.asarray(self.consistent, dtype=float).reshape(-1))
+        if self.covariances is not None:
+            self.covariances = np.asarray(self.covariances, dtype=float).reshape(-1, 2, 2)
+            if self.covariances.shape[0] != self.stamps.size:
+                raise DataError(f"trajectory {self.track_id}: {self.covariances.shape[0]} covariances for "
+                                f"{self.stamps.size} points")
+        if not (self.stamps.size == self.positions.shape[0] == self.confidences.size == self.consistent.size):
+            raise DataError(f"trajectory {self.track_id}: stamps, positions and confidences differ in length")
+        if self.stamps.size == 0:
+            raise DataError(f"trajectory {self.track_id}: no points")
+        order = np.argsort(self.stamps, kind="stable")
+        self.stamps, self.positions = self.stamps[order], self.positions[order]
+        self.confidences, self.consistent = self.confidences[order], self.consistent[order]
+        if self.covariances is not None:
+            self.covariances = self.covariances[order]
+        if not self.members:
+            self.members = [self.track_id]
+
+    @property
+    def start(self) -> float:
+        """First stamp."""
+        return float(self.stamps[0])
+
+    @property
+    def end(self) -> float:
+        """Last stamp."""
+        return float(self.stamps[-1])
+
+    def path_length(self, min_step_m: float = 0.0, noise_sigmas: float = 0.0) -> float:
+        """Path length in metres (steps shortened by ``noise_sigmas`` of their noise when covariances are known)."""
+        return path_length_m(self.positions, min_step_m, self.covariances, noise_sigmas)
+
+    def score(self, config: SelectionConfig | None = None) -> float:
+        """The paper's trajectory score."""
+        config = config or SelectionConfig()
+        known = np.isfinite(self.consistent)
+        return trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas),
+                                config.confidence_percentile,
+                                int(np.sum(self.consistent[known] > 0.5)) if config.size_consistency else None,
+                                int(known.sum()))
+
+    def end_velocity(self, window_s: float = 20.0) -> np.ndarray:
+        """Velocity (m/s) over the last ``window_s`` seconds (least squares); zeros with one point."""
+        return _velocity(self.stamps, self.positions, self.stamps >= self.end - window_s)
+
+    def start_velocity(self, window_s: float = 20.0) -> np.ndarray:
+        """Velocity (m/s) over the first ``window_s`` seconds."""
+        return _velocity(self.stamps, self.positions, self.stamps <= self.start + window_s)
+
+
+def _velocity(stamps: np.ndarray, positions: np.ndarray, select: np.ndarray) -> np.ndarray:
+    ok = select & np.all(np.isfinite(positions), axis=1)
+    t = stamps[ok]
+    if t.size < 2 or np.ptp(t) <= 0:
+        return np.zeros(2)
+    A = np.column_stack([t - t.mean(), np.ones_like(t)])
+    coef, *_ = np.linalg.lstsq(A, positions[ok], rcond=None)
+    return coef[0]
+
+
+def join_cost(first: Trajectory, second: Trajectory, config: SelectionConfig) -> float:
+    """Cost of appending ``second`` after ``first`` (gate-normalised mismatch), or ``inf`` if not allowed."""
+    gap = second.start - first.end
+    if gap < -config.join_max_overlap_s or gap > config.join_max_gap_s:
+        return math.inf
+    keep_first = first.stamps <= second.start if gap < 0 else np.ones(first.stamps.size, dtype=bool)
+    if not keep_first.any():
+        return math.inf
+    end_t = float(first.stamps[keep_first][-1])
+    end_p = first.positions[keep_first][-1]
+    start_p = second.positions[0]
+    if not (np.all(np.isfinite(end_p)) and np.all(np.isfinite(start_p))):
+        return math.inf
+    dt = max(second.start - end_t, 0.0)
+    jump = float(np.hypot(*(start_p - end_p)))
+    if dt > 0 and jump / dt > config.max_speed_mps + config.join_gate_m / dt:
+        return math.inf
+    # Extrapolate both ways and take the better: the end of one piece and the start of the other.
+    forward = end_p + first.end_velocity() * dt
+    backward = start_p - second.start_velocity() * dt
+    mismatch = min(float(np.hypot(*(start_p - forward))), float(np.hypot(*(end_p - backward))))
+    gate = config.join_gate_m + config.join_gate_range_frac * float(np.hypot(*start_p)) + \
+        config.join_gate_speed_mps * dt
+    if mismatch > gate:
+        return math.inf
+    return mismatch / gate
+
+
+def concatenate(first: Trajectory, second: Trajectory) -> Trajectory:
+    """``first`` then ``second``; points of ``first`` after ``second`` starts are dropped (overlap)."""
+    keep = first.stamps < second.start
+    covariances = None
+    if first.covariances is not None and second.covariances is not None:
+        covariances = np.concatenate([first.covariances[keep], second.covariances])
+    return Trajectory(first.track_id, np.concatenate([first.stamps[keep], second.stamps]),
+                      np.concatenate([first.positions[keep], second.positions]),
+                      np.concatenate([first.confidences[keep], second.confidences]),
+                      members=first.members + second.members,
+                      consistent=np.concatenate([first.consistent[keep], second.consistent]),
+                      covariances=covariances)
+
+
+def join_trajectories(trajectories: list[Trajectory], config: SelectionConfig | None = None) -> list[Trajectory]:
+    """Join pieces of the same vessel cut in time: one optimal assignment of piece ends to piece starts.
+
+    Returns the chains (a piece that joins nothing is a chain of one), each with ``members`` in time order.
+    """
+    config = config or SelectionConfig()
+    n = len(trajectories)
+    if n < 2:
+        return list(trajectories)
+    cost = np.full((n, n), _FORBIDDEN)
+    for i, a in enumerate(trajectories):
+        for j, b in enumerate(trajectories):
+            if i != j and b.start > a.start:
+                c = join_cost(a, b, config)
+                if math.isfinite(c):
+                    cost[i, j] = c
+    rows, cols = linear_sum_assignment(cost)
+    successor = {int(r): int(c) for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FORBIDDEN}
+    has_predecessor = set(successor.values())
+    chains: list[Trajectory] = []
+    for i in range(n):
+        if i in has_predecessor:
+            continue
+        chain = trajectories[i]
+        j = i
+        seen = {i}
+        while j in successor and successor[j] not in seen:
+            j = successor[j]
+            seen.add(j)
+            chain = concatenate(chain, trajectories[j])
+        chains.append(chain)
+    return chains
+
+
+def select_target(trajectories: list[Trajectory], config: SelectionConfig | None = None,
+                  join: bool = True) -> tuple[Trajectory | None, list[tuple[Trajectory, float]]]:
+    """The vessel of interest: the best-scoring (joined) trajectory; also every candidate with its score."""
+    config = config or SelectionConfig()
+    candidates = join_trajectories(trajectories, config) if join else list(trajectories)
+    scored = sorted(((c, c.score(config)) for c in candidates), key=lambda cs: -cs[1])
+    return (scored[0][0] if scored else None), scored
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Online
+
+
+@dataclass
+class _Running:
+    confidences: deque
+    path_m: float = 0.0
+    last_position: np.ndarray | None = None
+    anchor_position: np.ndarray | None = None      # last point counted into the path
+    anchor_covariance: np.ndarray | None = None
+    first_position: np.ndarray | None = None
+    last_stamp: float = math.nan
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    first_stamp: float = math.nan
+    eligible: bool = False
+    established: bool = False
+    inherited_from: str = ""
+    consistent: int = 0
+    known: int = 0
+
+    def score(self, config: SelectionConfig) -> float:
+        return trajectory_score(np.fromiter(self.confidences, float), self.path_m, config.confidence_percentile,
+                                self.consistent if config.size_consistency else None, self.known)
+
+
+class OnlineTargetSelector:
+    """Running trajectory scores, online joining and a target that changes only for a clear, lasting reason.
+
+    ``update(stamp, world_tracks)`` takes the fuser's ``WorldTrack``s of one frame (anything with
+    ``screen.track_id``, ``screen.status``, ``screen.updated``, ``screen.confidence``, ``has_world``,
+    ``position``, ``velocity``) and returns the id of the vessel of interest (None if there is none).
+    """
+
+    def __init__(self, config: SelectionConfig | None = None):
+        self.config = config or SelectionConfig()
+        self._running: dict[str, _Running] = {}
+        self._ended: dict[str, _Running] = {}
+        self.target: str | None = None
+        self._challenger: str | None = None
+        self._challenger_since: float = math.nan
+        self._last_target_ended: str | None = None
+        self._lost_score = 0.0
+        self._lost_stamp = math.nan
+        self._pending_target: str | None = None
+        self.switches = 0
+        self.joins = 0
+
+    def reset(self) -> None:
+        """Forget everything (a replay restarted)."""
+        self._running.clear()
+        self._ended.clear()
+        self.target = None
+        self._challenger = None
+        self._challenger_since = math.nan
+        self._last_target_ended = None
+        self._lost_score = 0.0
+        self._lost_stamp = math.nan
+        self._pending_target = None
+
+    def score(self, track_id: str) -> float:
+        """Current score of a track (0 for an unknown one)."""
+        running = self._running.get(track_id) or self._ended.get(track_id)
+        return running.score(self.config) if running is not None else 0.0
+
+    def _try_inherit(self, track_id: str, stamp: float, position: np.ndarray) -> _Running | None:
+        """An ended track whose extrapolation reaches ``position`` now: its history continues in ``track_id``."""
+        best, best_cost = None, math.inf
+        cfg = self.config
+        for ended_id, ended in self._ended.items():
+            gap = stamp - ended.last_stamp
+            if not (0 <= gap <= cfg.join_max_gap_s) or ended.last_position is None:
+                continue
+            predicted = ended.last_position + ended.velocity * gap
+            mismatch = float(np.hypot(*(position - predicted)))
+            gate = (cfg.join_gate_m + cfg.join_gate_range_frac * float(np.hypot(*position))
+                    + cfg.join_gate_speed_mps * gap)
+            jump = float(np.hypot(*(position - ended.last_position)))
+            if gap > 0 and jump / gap > cfg.max_speed_mps + cfg.join_gate_m / gap:
+                continue
+            if mismatch <= gate and mismatch / gate < best_cost:
+                best, best_cost = ended_id, mismatch / gate
+        if best is None:
+            return None
+        inherited = self._ended.pop(best)
+        inherited.inherited_from = best
+        self.joins += 1
+        if best == self._last_target_ended:
+            self._pending_target = track_id  # the vessel of interest is back: it takes over at once
+        return inherited
+
+    def update(self, stamp: float, world_tracks) -> str | None:
+        """Update the running scores with one frame and return the vessel of interest's track id."""
+        cfg = self.config
+        present: set[str] = set()
+        measured_now: set[str] = set()
+        for wt in world_tracks:
+            tid = wt.screen.track_id
+            if wt.screen.status == 3:  # LOST
+                running = self._running.pop(tid, None)
+                if running is not None:
+                    self._ended[tid] = running
+                    if tid == self.target:
+                        self._target_lost(tid, running, stamp)
+                continue
+            present.add(tid)
+            running = self._running.get(tid)
+            position = np.asarray(wt.position, dtype=float) if wt.has_world else None
+            measured = wt.screen.updated and position is not None and np.all(np.isfinite(position))
+            if running is None:
+                running = None
+                if measured:
+                    running = self._try_inherit(tid, stamp, position)
+                if running is None:
+                    running = _Running(deque(maxlen=cfg.history_length), first_stamp=stamp)
+                self._running[tid] = running
+            if wt.screen.updated and math.isfinite(wt.screen.confidence):
+                running.confidences.append(float(wt.screen.confidence))
+            size_consistent = getattr(wt, "size_consistent", None)
+            if wt.screen.updated and size_consistent is not None:
+                running.known += 1
+                running.consistent += int(bool(size_consistent))
+            if measured:
+                measured_now.add(tid)
+                if running.first_position is None:
+                    running.first_position = position.copy()
+                covariance = getattr(wt, "position_covariance", None)
+                covariance = None if covariance is None else np.asarray(covariance, dtype=float)
+                if running.anchor_position is None:
+                    running.anchor_position, running.anchor_covariance = position.copy(), covariance
+                else:
+                    # Significant motion since the last counted point (see path_length_m): position noise
+                    # (metres per pixel near the horizon) must not add up into a long path.
+                    step = float(np.hypot(*(position - running.anchor_position)))
+                    if cfg.path_noise_sigmas > 0 and covariance is not None and \
+                            running.anchor_covariance is not None:
+                        step = significant_step(running.anchor_position, position, running.anchor_covariance,
+                                                covariance, cfg.path_noise_sigmas)
+                    if step > 0 and step >= cfg.min_step_m:
+                        running.path_m += step
+                        running.anchor_position, running.anchor_covariance = position.copy(), covariance
+                running.last_position = position.copy()
+                running.last_stamp = stamp
+                velocity = np.asarray(wt.velocity, dtype=float)
+                running.velocity = velocity if np.all(np.isfinite(velocity)) else np.zeros(2)
+            running.eligible = bool(wt.has_world)
+            running.established = wt.screen.status != 0 or bool(running.inherited_from)
+        # Tracks that vanished without a LOST report count as ended.
+        for tid in [t for t in self._running if t not in present]:
+            self._ended[tid] = self._running.pop(tid)
+            if tid == self.target:
+                self._target_lost(tid, self._ended[tid], stamp)
+        for tid in [t for t, r in self._ended.items() if not (stamp - r.last_stamp <= cfg.join_max_gap_s)]:
+            del self._ended[tid]
+        self._handover(stamp, measured_now)
+        return self._choose(stamp)
+
+    def _target_lost(self, tid: str, running: _Running, stamp: float) -> None:
+        self._last_target_ended = tid
+        self._lost_score = running.score(self.config)
+        self._lost_stamp = stamp
+        self.target = None
+
+    def _handover(self, stamp: float, measured_now: set[str]) -> None:
+        """Hand the target's role to a new track that continues it (the online counterpart of joining).
+
+        The target coasts while a track started after its last detection is where the target should be: the
+        tracker lost the vessel and started a new track on it (a turn between sparse frames). The new track takes
+        over the target's history and role at once.
+        """
+        cfg = self.config
+        current = self._running.get(self.target) if self.target is not None else None
+        if current is None or self.target in measured_now or current.last_position is None:
+            return
+        best, best_cost = None, math.inf
+        for tid in measured_now:
+            candidate = self._running[tid]
+            if candidate.inherited_from or not (candidate.first_stamp > current.last_stamp):
+                continue
+            gap = stamp - current.last_stamp
+            if not (0 < gap <= cfg.join_max_gap_s):
+                continue
+            predicted = current.last_position + current.velocity * gap
+            position = candidate.last_position
+            mismatch = float(np.hypot(*(position - predicted)))
+            gate = (cfg.join_gate_m + cfg.join_gate_range_frac * float(np.hypot(*position))
+                    + cfg.join_gate_speed_mps * gap)
+            jump = float(np.hypot(*(candidate.first_position - current.last_position)))
+            first_gap = candidate.first_stamp - current.last_stamp
+            if jump / first_gap > cfg.max_speed_mps + cfg.join_gate_m / first_gap:
+                continue
+            if mismatch <= gate and mismatch / gate < best_cost:
+                best, best_cost = tid, mismatch / gate
+        if best is None:
+            return
+        candidate = self._running[best]
+        merged = deque(current.confidences, maxlen=cfg.history_length)
+        merged.extend(candidate.confidences)
+        candidate.confidences = merged
+        candidate.consistent += current.consistent
+        candidate.known += current.known
+        candidate.path_m += current.path_m + float(np.hypot(*(candidate.first_position - current.last_position)))
+        candidate.inherited_from = self.target
+        candidate.established = True
+        del self._running[self.target]
+        self.target = best
+        self._challenger = None
+        self.switches += 1
+        self.joins += 1
+
+    def _choose(self, stamp: float) -> str | None:
+        cfg = self.config
+        # Established (confirmed, or continuing a joined track) candidates first; a tentative track only
+        # while there is nothing else, and it gives way at once to an established one.
+        scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible and r.established}
+        if not scores:
+            scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible}
+        elif self.target in self._running and not self._running[self.target].established:
+            self.target = None
+        if not scores:
+            self._challenger = None
+            return self.target if self.target in self._running else None
+        best = max(scores, key=lambda t: (scores[t], t == self.target))
+        if self._pending_target is not None:
+            if self._pending_target in scores:
+                if self.target != self._pending_target:
+                    self.switches += 1
+                self.target = self._pending_target
+                self._pending_target = None
+                self._challenger = None
+                return self.target
+            if self._pending_target not in self._running:
+                self._pending_target = None
+        if self.target is None or self.target not in self._running:
+            if stamp - self._lost_stamp <= cfg.join_max_gap_s and \
+                    scores[best] < cfg.reacquire_fraction * self._lost_score:
+                self.target = None  # the vessel of interest was lost a moment ago: no stand-in for it
+                return None
+            self.target = best
+            self._challenger = None
+            return self.target
+        current = scores.get(self.target, self._running[self.target].score(cfg))
+        if best == self.target or scores[best] <= current * cfg.switch_ratio + cfg.switch_margin:
+            self._challenger = None
+            return self.target
+        if self._challenger != best:
+            self._challenger = best
+            self._challenger_since = stamp
+        if stamp - self._challenger_since >= cfg.switch_hold_s:
+            self.target = best
+            self._challenger = None
+            self.switches += 1
+        return self.target
