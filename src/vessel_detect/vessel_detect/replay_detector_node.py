@@ -2,9 +2,14 @@
 
 Used to feed the hand-labelled boxes (or a detector run saved by ``./vessel detect run``) through the same
 tracker, fuser and GPS publisher nodes, e.g. ``./vessel demo --detections labels``: the rest of the graph cannot
-tell it from the detector. For every image it publishes a ``Detection2DArray`` with the image's header holding
-the CSV rows whose ``stamp`` matches the image stamp (within ``stamp_tolerance_s``); images with no rows get an
-empty array, so the tracker still sees time pass.
+tell it from the detector. Two ways to pace it:
+
+* ``pace: images``: for every image it publishes a ``Detection2DArray`` with the image's header holding the CSV
+  rows whose ``stamp`` matches the image stamp (within ``stamp_tolerance_s``); images with no rows get an empty
+  array, so the tracker still sees time pass.
+* ``pace: self``: no camera needed (hand labels are drawn on frames that need not be in the image set): it
+  publishes one array per distinct CSV stamp in time order, the next one when the tracker's output for the
+  previous one has arrived on ``ack_topic`` (or after ``ack_timeout_s``), and exits at the end.
 
 CSV columns: ``stamp`` (UNIX seconds), ``x1, y1, x2, y2`` (full-resolution pixels), ``score``, ``class_name``.
 """
@@ -18,6 +23,7 @@ from pathlib import Path
 
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
+from std_msgs.msg import Header
 
 from vessel_calib.errors import DataError
 from vessel_calib.node_support import (
@@ -26,9 +32,10 @@ from vessel_calib.node_support import (
     declare_parameter,
     main_for,
     reliable_qos,
+    sec_to_stamp,
     stamp_to_sec,
 )
-from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
+from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose, VesselTrackArray
 
 CSV_COLUMNS = ("stamp", "x1", "y1", "x2", "y2", "score", "class_name")
 
@@ -61,21 +68,67 @@ class ReplayDetectorNode(Node):
                                      + ", ".join(CSV_COLUMNS) + ")", read_only=True)
         self._tolerance_s = declare_parameter(self, "stamp_tolerance_s", 0.005, "largest stamp difference "
                                               "between an image and its CSV rows, seconds", float_range=(0.0, 10.0))
+        self._pace = declare_parameter(self, "pace", "images", "'images': one array per received image; 'self': "
+                                       "one array per CSV stamp, paced by ack_topic, no camera needed",
+                                       read_only=True, additional_constraints="images | self")
         image_topic = declare_parameter(self, "compressed_topic", "/camera/image_raw/compressed",
-                                        "CompressedImage topic to follow ('' to not subscribe)")
+                                        "CompressedImage topic to follow ('' to not subscribe; pace images)")
         raw_topic = declare_parameter(self, "image_topic", "", "Image topic to follow ('' to not subscribe)")
         output_topic = declare_parameter(self, "detections_topic", "/vessel/detections", "Detection2DArray output")
+        ack_topic = declare_parameter(self, "ack_topic", "/vessel/tracks/screen", "pace self: the next array goes "
+                                      "when a VesselTrackArray with the previous stamp arrives here")
+        self._ack_timeout_s = declare_parameter(self, "ack_timeout_s", 5.0, "pace self: or after this long, s",
+                                                float_range=(0.01, 600.0))
+        self._frame_id = declare_parameter(self, "frame_id", "camera", "pace self: header frame_id")
+        self._wait_for = declare_parameter(self, "wait_for_subscribers", 1, "pace self: start once this many "
+                                           "subscribers of the detections are matched (e.g. tracker + recorder)",
+                                           int_range=(0, 100))
+        if self._pace not in ("images", "self"):
+            raise DataError(f"pace must be 'images' or 'self', not {self._pace!r}")
         self._rows = load_detection_rows(Path(csv_path)) if csv_path else {}
         if not csv_path:
             self.get_logger().warning("detections_csv is empty: every image gets an empty Detection2DArray")
         self._stamps = sorted(self._rows)
         self._health = NodeHealth(self)
         self._publisher = self.create_publisher(Detection2DArray, output_topic, reliable_qos(10))
-        if image_topic:
-            self.create_subscription(CompressedImage, image_topic, self._on_image, SENSOR_DATA_QOS)
-        if raw_topic:
-            self.create_subscription(Image, raw_topic, self._on_image, SENSOR_DATA_QOS)
         self._health.set_value("stamps_in_csv", len(self._stamps))
+        self.finished = False
+        if self._pace == "images":
+            if image_topic:
+                self.create_subscription(CompressedImage, image_topic, self._on_image, SENSOR_DATA_QOS)
+            if raw_topic:
+                self.create_subscription(Image, raw_topic, self._on_image, SENSOR_DATA_QOS)
+            return
+        self._next_index = 0
+        self._awaiting: float | None = None
+        self._sent_at = 0.0
+        self.create_subscription(VesselTrackArray, ack_topic, self._on_ack, reliable_qos(10))
+        self.create_timer(0.01, self._pace_self)
+
+    def _on_ack(self, tracks) -> None:
+        if self._awaiting is not None and abs(stamp_to_sec(tracks.header.stamp) - self._awaiting) < 1e-6:
+            self._awaiting = None
+
+    def _pace_self(self) -> None:
+        """Send the next stamp once the graph is connected and the previous one has been consumed."""
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if self._awaiting is not None:
+            if now - self._sent_at < self._ack_timeout_s:
+                return
+            self._health.problem("ack_timeout", f"no tracks came back within {self._ack_timeout_s} s; sending on")
+            self._awaiting = None
+        if self._publisher.get_subscription_count() < self._wait_for:
+            return
+        if self._next_index >= len(self._stamps):
+            self.get_logger().info(f"all {len(self._stamps)} stamps of the CSV sent")
+            self.finished = True
+            return
+        stamp_s = self._stamps[self._next_index]
+        self._next_index += 1
+        header = Header(stamp=sec_to_stamp(stamp_s), frame_id=self._frame_id)
+        self._publish(header, stamp_s)
+        self._awaiting = stamp_s
+        self._sent_at = now
 
     def _rows_for(self, stamp_s: float) -> list:
         index = bisect.bisect_left(self._stamps, stamp_s - self._tolerance_s)
@@ -86,15 +139,17 @@ class ReplayDetectorNode(Node):
         return rows
 
     def _on_image(self, image) -> None:
-        stamp_s = stamp_to_sec(image.header.stamp)
+        self._publish(image.header, stamp_to_sec(image.header.stamp))
+
+    def _publish(self, header, stamp_s: float) -> None:
         array = Detection2DArray()
-        array.header = image.header
+        array.header = header
         for x1, y1, x2, y2, score, class_name in self._rows_for(stamp_s):
             if not all(math.isfinite(v) for v in (x1, y1, x2, y2, score)) or x2 <= x1 or y2 <= y1:
                 self._health.problem("bad_row", f"skipping a detection with a non-finite or empty box at {stamp_s}")
                 continue
             detection = Detection2D()
-            detection.header = image.header
+            detection.header = header
             detection.bbox.center.position.x = (x1 + x2) / 2.0
             detection.bbox.center.position.y = (y1 + y2) / 2.0
             detection.bbox.size_x = x2 - x1

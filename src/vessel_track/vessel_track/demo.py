@@ -107,18 +107,22 @@ def prepare_bags(dataset: Dataset, videos: list[int], bag_root: Path) -> dict[in
     return {v: bag_root / f"video_{v}" for v in videos}
 
 
-def write_label_detections(dataset: Dataset, videos: list[int], path: Path) -> int:
-    """The primary hand-labelled boxes as a detections CSV for ``replay_detector``; rows written."""
+def write_label_detections(dataset: Dataset, video: int, path: Path) -> int:
+    """One video's primary hand-labelled boxes as a detections CSV for ``replay_detector``; frames written.
+
+    Hand labels are drawn on frames that need not be among the dataset's images, so ``replay_detector`` runs
+    self-paced on their own stamps instead of following the camera.
+    """
     from vessel_detect.replay_detector_node import CSV_COLUMNS
 
-    labels = dataset.labels(videos, primary_only=True)
+    labels = dataset.labels([video], primary_only=True)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(CSV_COLUMNS)
         for label in labels:
             writer.writerow([f"{label.stamp:.6f}", label.x1, label.y1, label.x2, label.y2, 1.0, "boat"])
-    return len(labels)
+    return len({round(label.stamp, 6) for label in labels})
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -152,11 +156,11 @@ class GraphWatcher:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
-    def connected(self, with_recorder: bool = True) -> bool:
+    def connected(self, with_camera: bool = True, with_recorder: bool = True) -> bool:
         """Every link from the detector to the recorder is matched (so no frame is lost at the start)."""
         count = self.node.count_subscribers
         links = [
-            count("/camera/image_raw/compressed") >= 1,
+            count("/camera/image_raw/compressed") >= 1 or not with_camera,
             count("/vessel/detections") >= 1 + with_recorder,
             count("/vessel/tracks/screen") >= 1 + with_recorder,
             count("/vessel/tracks") >= 2 + with_recorder,
@@ -176,7 +180,7 @@ class VideoRun:
     """What happened while one video went through the graph."""
 
     video: int
-    frames_in_bag: int
+    frames_expected: int
     frames_out: int
     seconds: float
     recording: Path
@@ -184,34 +188,47 @@ class VideoRun:
 
 
 def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, label_csv: Path | None,
-              log_dir: Path, frames_in_bag: int) -> VideoRun:
-    """One video through the whole graph as separate processes; the outputs recorded to ``recording``."""
+              log_dir: Path, frames_expected: int) -> VideoRun:
+    """One video through the whole graph as separate processes; the outputs recorded to ``recording``.
+
+    The source is the camera replaying the video's bag into the detector, or, with hand labels, the replay
+    detector publishing the labelled boxes on their own stamps. It ends when every frame has come out of the
+    fuser, or when the source has finished and nothing more has come out for a few seconds (a frame lost on the
+    way), or after ``--frame-timeout`` seconds without progress.
+    """
     runner = GraphRunner(params, log_dir=log_dir)
     watcher = GraphWatcher()
     started = time.monotonic()
+    labels = label_csv is not None
     try:
         runner.start(RECORDER, {"output": str(recording),
                                 "topics": [f"{topic}:{msgtype}" for topic, msgtype in OUTPUT_TOPICS.items()]})
         nodes = {node.name: node for node in GRAPH_NODES}
         for name in ("gps_publisher", "fuser", "tracker"):
             runner.start(nodes[name])
-        if label_csv is not None:
-            runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv)})
+        if labels:  # self-paced: it waits for the tracker and the recorder before sending anything
+            runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
+                                           "wait_for_subscribers": 2})
         else:
             runner.start(nodes["detector"])
         deadline = time.monotonic() + 60
-        while not watcher.connected():
+        while not watcher.connected(with_camera=not labels):
             watcher.spin(0.1)
             failed = runner.failed()
             if failed:
                 raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
             if time.monotonic() > deadline:
                 raise VesselError("the graph did not connect within 60 s; see the logs in " + str(log_dir))
-        camera_parameters: dict[str, object] = {"source": str(bag), "rate": 0.0, "loop": False, "exit_at_end": True}
-        if args.max_frames:
-            camera_parameters["max_frames"] = args.max_frames
-        runner.start(nodes["camera"], camera_parameters)
-        expected = min(frames_in_bag, args.max_frames) if args.max_frames else frames_in_bag
+        if labels:
+            source = "detector"
+        else:
+            source = "camera"
+            camera_parameters: dict[str, object] = {"source": str(bag), "rate": 0.0, "loop": False,
+                                                    "exit_at_end": True}
+            if args.max_frames:
+                camera_parameters["max_frames"] = args.max_frames
+            runner.start(nodes["camera"], camera_parameters)
+        expected = min(frames_expected, args.max_frames) if args.max_frames else frames_expected
         last_progress = time.monotonic()
         last_count = -1
         while watcher.tracks_received < expected:
@@ -224,10 +241,12 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
             failed = runner.failed()
             if failed:
                 raise VesselError(f"node(s) {failed} failed during video {video}:\n{runner.log_tail(failed[0])}")
-            if time.monotonic() - last_progress > args.frame_timeout:
+            idle = time.monotonic() - last_progress
+            source_done = runner.running[source].process.poll() is not None
+            if (source_done and idle > 5.0) or idle > args.frame_timeout:
                 print(file=sys.stderr)
-                log(f"video {video}: no frame came out for {args.frame_timeout:.0f} s; stopping with "
-                    f"{watcher.tracks_received}/{expected}")
+                log(f"video {video}: stopping with {watcher.tracks_received}/{expected} frames through the graph "
+                    f"({'the source finished' if source_done else 'no progress'}; see {log_dir})")
                 break
         print(file=sys.stderr)
         watcher.spin(1.0)  # let the GPS publisher and the recorder take the last messages
@@ -235,7 +254,7 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
     finally:
         statuses = runner.stop()
         watcher.close()
-    return VideoRun(video, frames_in_bag, frames_out, time.monotonic() - started, recording, statuses)
+    return VideoRun(video, frames_expected, frames_out, time.monotonic() - started, recording, statuses)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -280,6 +299,42 @@ def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
     return predictions_path, tracks_path
 
 
+def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Path, params_file: Path) -> Path:
+    """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
+
+    The same tracker and fuser cores the nodes run, then the trajectory joining, scoring and smoothing over
+    the whole video that only recorded data allows (``vessel_track.pipeline``, mode ``offline``).
+    """
+    import numpy as np
+
+    from vessel_calib.params import load_camera_yaml
+    from vessel_detect.bag_io import BagReader, ns_of_stamp
+    from vessel_track.fuser_settings import load_fuser_settings
+    from vessel_track.pipeline import DetectionFrame, PipelineConfig, run_video, write_predictions_csv
+
+    camera = load_camera_yaml(calibration)
+    config = PipelineConfig(mode="offline", settings=load_fuser_settings(params_file))
+    results = []
+    for run in runs:
+        frames = []
+        with BagReader(run.recording) as reader:
+            if "/vessel/detections" not in reader.topics:
+                continue
+            for index, (_, array) in enumerate(reader.read_topic("/vessel/detections")):
+                boxes = [[d.bbox.center.position.x - d.bbox.size_x / 2, d.bbox.center.position.y - d.bbox.size_y / 2,
+                          d.bbox.center.position.x + d.bbox.size_x / 2, d.bbox.center.position.y + d.bbox.size_y / 2]
+                         for d in array.detections]
+                scores = [d.results[0].hypothesis.score if d.results else 0.0 for d in array.detections]
+                stamp = ns_of_stamp(array.header.stamp) / 1e9
+                frames.append(DetectionFrame(run.video, index, stamp, np.array(boxes, dtype=float).reshape(-1, 4),
+                                             np.array(scores, dtype=float)))
+        if frames:
+            results.append(run_video(frames, camera, config))
+    path = out / "predictions_offline.csv"
+    write_predictions_csv(path, results)
+    return path
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; 0 when it ran to the end, 2 on bad input, 1 when the graph failed."""
     args = parse_args(argv)
@@ -304,15 +359,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         is_shared = shared is not None and Path(data).resolve() == shared.resolve()
         bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
         bags = prepare_bags(dataset, videos, bag_root)
-        label_csv = None
         if args.detections == "labels":
-            label_csv = out / "label_detections.csv"
-            count = write_label_detections(dataset, videos, label_csv)
-            if count == 0:
-                raise VesselError(f"--detections labels: {data} has no hand labels for videos {videos}")
-        frames_per_video = {v: sum(1 for f in dataset.frames([v])) for v in videos}
+            frames_per_video = {v: write_label_detections(dataset, v, out / "labels" / f"video_{v}.csv")
+                                for v in videos}
+            unlabelled = [v for v, count in frames_per_video.items() if count == 0]
+            if unlabelled:
+                raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
+        else:
+            frames_per_video = {v: len(dataset.frames([v])) for v in videos}
         runs = []
         for video in videos:
+            label_csv = out / "labels" / f"video_{video}.csv" if args.detections == "labels" else None
             recording = out / "recording" / f"video_{video}"
             if recording.exists():
                 import shutil
@@ -322,13 +379,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
             run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
                             frames_per_video[video])
-            log(f"video {video}: {run.frames_out}/{run.frames_in_bag} frames in {run.seconds:.1f} s "
+            log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
                 f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
             runs.append(run)
         predictions, tracks = export_recordings(runs, out)
         from vessel_track.demo_report import write_report
 
-        summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration)
+        offline = export_offline_predictions(runs, out, calibration, params[0])
+        summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
+                               "labels" if args.detections == "labels" else "frames")
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         log(f"outputs in {out}: predictions.csv, predictions_offline.csv, tracks.csv, summary.json, plots, "
             "recording/")

@@ -11,14 +11,18 @@ PAPER_SPLITS = {"13-16": [13, 14, 15, 16], "13-17": [13, 14, 15, 16, 17]}
 
 
 def write_report(dataset, videos: list[int], out: Path, predictions: Path, tracks: Path, runs, calibration: Path,
-                 offline_predictions: Path | None = None) -> dict:
-    """Score the demo's predictions like the paper (plots into ``out``), print the table, return the summary."""
+                 offline_predictions: Path | None = None, coverage_frames: str = "frames") -> dict:
+    """Score the demo's predictions like the paper (plots into ``out``), print the table, return the summary.
+
+    ``coverage_frames``: the frames coverage counts, ``frames`` (every image) or ``labels`` (the hand-labelled
+    frames, when those were the detections).
+    """
     has_truth = (dataset.path / "target_gps_fixes.csv").is_file()
     summary: dict = {
         "videos": videos,
         "calibration": str(calibration),
         "runs": [
-            {"video": r.video, "frames_in_bag": r.frames_in_bag, "frames_out": r.frames_out,
+            {"video": r.video, "frames_expected": r.frames_expected, "frames_out": r.frames_out,
              "seconds": round(r.seconds, 2), "node_exit_statuses": r.node_statuses}
             for r in runs
         ],
@@ -27,12 +31,13 @@ def write_report(dataset, videos: list[int], out: Path, predictions: Path, track
         print(f"{dataset.path} has no target_gps_fixes.csv: predictions written, nothing to score against",
               file=sys.stderr)
         return summary
-    summary["online"] = evaluate(predictions, dataset.path, videos, out=out / "online", calib=calibration)
+    summary["online"] = evaluate(predictions, dataset.path, videos, out=out / "online", calib=calibration,
+                                 frames=coverage_frames)
     print("Vessel of interest as published on /vessel/fix (online):")
     print(format_table(summary["online"]))
     if offline_predictions is not None and offline_predictions.is_file():
         summary["offline"] = evaluate(offline_predictions, dataset.path, videos, out=out / "offline",
-                                      calib=calibration)
+                                      calib=calibration, frames=coverage_frames)
         print("\nAfter the offline smoothing pass over the recorded tracks:")
         print(format_table(summary["offline"]))
     return summary
