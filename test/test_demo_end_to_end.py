@@ -1,0 +1,52 @@
+"""A short ./vessel demo: the whole graph as separate processes on two challenge videos, scored and plotted."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from vessel_calib import geodesy
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_short_demo_writes_sane_outputs(data_dir, model_path, ros_env, tmp_path):
+    out = tmp_path / "demo"
+    command = [sys.executable, "-m", "vessel_track.demo", "--data", str(data_dir), "--videos", "13,14",
+               "--max-frames", "6", "--out", str(out), "--bags", str(tmp_path / "bags")]
+    result = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "Traceback" not in result.stderr
+
+    with (out / "predictions.csv").open() as handle:
+        reader = csv.DictReader(handle)
+        assert reader.fieldnames == ["video", "t_utc_s", "lat", "lon"]
+        rows = list(reader)
+    assert rows, "the vessel of interest was never published on /vessel/fix"
+    camera = json.loads((data_dir / "camera.json").read_text())
+    for row in rows:
+        assert int(row["video"]) in (13, 14)
+        assert 0 <= float(row["t_utc_s"]) < 86400
+        distance = geodesy.haversine_m(float(row["lat"]), float(row["lon"]), camera["camera_lat"],
+                                       camera["camera_lon"])
+        assert distance < 3000, row
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert [run["video"] for run in summary["runs"]] == [13, 14]
+    assert all(run["frames_out"] == 6 for run in summary["runs"]), summary["runs"]
+    overall = summary["online"]["overall"]
+    assert overall["n"] > 0
+    for key in ("m_per_100m", "median_m", "p80_m"):
+        assert math.isfinite(overall[key]) and overall[key] >= 0, (key, overall)
+    assert (out / "tracks.csv").stat().st_size > 0
+    assert (out / "predictions_offline.csv").is_file()
+    for picture in ("online/error_vs_distance.png", "online/error_hist.png", "online/map_video13.png"):
+        assert (out / picture).stat().st_size > 1000, picture
+    for video in (13, 14):
+        assert (out / "recording" / f"video_{video}" / "metadata.yaml").is_file()
+    assert "m/100m" in result.stdout
