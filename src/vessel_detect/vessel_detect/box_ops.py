@@ -68,3 +68,4 @@ def nms(
         keep.append(index)
         suppressed |= iou[index] > iou_threshold
     return np.asarray(keep, dtype=np.int64)
+

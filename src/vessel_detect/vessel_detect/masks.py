@@ -18,7 +18,7 @@ from vessel_calib.errors import VesselError
 
 # The challenge camera (AI Tracks at Sea, 1280x720): the top of the mooring post at the bottom centre,
 # traced on the frames of videos 6-17 (it does not move), with a few pixels to spare.
-CHALLENGE_MOORING_POST = "690,660 712,651 760,646 810,644 862,646 910,651 934,660 934,720 690,720"
+CHALLENGE_MOORING_POST = "693,676 701,662 728,654 770,650 812,649 856,650 898,654 922,662 931,676 931,720 693,720"
 DEFAULT_EXCLUSION_POLYGONS: tuple[str, ...] = (CHALLENGE_MOORING_POST,)
 
 

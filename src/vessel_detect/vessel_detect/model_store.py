@@ -124,20 +124,19 @@ def shared_model_dir() -> Path:
 
 def how_to_get(spec: ModelSpec) -> str:
     """One sentence on how to obtain the model the spec names."""
-    url = spec.effective_url
-    checksum = spec.expected_sha256
-    parts = []
-    if url:
-        parts.append(f"download it from {url}")
+    cache = default_cache_dir() / spec.file_name
+    checksum = f" (sha256 {spec.expected_sha256})" if spec.expected_sha256 else ""
     if spec.is_default_model:
-        parts.append(f"({DEFAULT_MODEL_SOURCE})")
-    parts.append(
-        "and give its path with the model_path parameter (or the VESSEL_MODEL environment variable), or put it "
-        f"in {default_cache_dir()}/{spec.file_name}"
+        return (
+            f"get the default model, {DEFAULT_MODEL_SOURCE}{checksum}: download {DEFAULT_MODEL_URL} to {cache}, "
+            f"or set model_path (or ${MODEL_ENV}) to a copy of it"
+        )
+    if spec.url:
+        return f"download {spec.url}{checksum} to {cache}, or set model_path to a local copy"
+    return (
+        "set model_path to an existing ONNX model file, or leave model_path and model_url empty to use the "
+        f"default YOLOX-Nano (from ../shared/models, the cache, or {DEFAULT_MODEL_URL})"
     )
-    if checksum:
-        parts.append(f"; expected sha256 {checksum}")
-    return " ".join(parts)
 
 
 def _verify(path: Path, spec: ModelSpec, what: str) -> None:

@@ -247,5 +247,4 @@ def merge_windows(
 
 def nms_per_window(dets: WindowDetections, iou_threshold: float) -> WindowDetections:
     """Class-aware NMS inside one window's detections (the usual single-image NMS)."""
-    keep = nms(dets.boxes_xyxy, dets.scores, iou_threshold, dets.class_ids)
-    return dets.take(keep)
+    return dets.take(nms(dets.boxes_xyxy, dets.scores, iou_threshold, dets.class_ids))

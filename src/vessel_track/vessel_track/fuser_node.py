@@ -43,16 +43,26 @@ PROBLEM_MESSAGES = {
 }
 
 
-def screen_track_from_msg(msg: VesselTrack, stamp: float) -> ScreenTrack:
-    """The fuser core's view of a ``VesselTrack`` from the tracker."""
+def screen_track_from_msg(msg: VesselTrack, stamp: float, source: str = "measured") -> ScreenTrack:
+    """The fuser core's view of a ``VesselTrack`` from the tracker (as ``pipeline.screen_track_of``).
+
+    ``source`` (``fusion.screen_source``): ``measured`` takes the box of the detection associated in this image
+    (``detection_bbox``) when the track was updated and that box is filled in, else the filtered ``bbox``;
+    ``filtered`` always takes ``bbox``.
+    """
     last_seen = stamp_to_sec(msg.last_seen)
+    updated = abs(last_seen - stamp) <= UPDATED_TOLERANCE_S
+    box = msg.bbox
+    detection = msg.detection_bbox
+    if source == "measured" and updated and detection.size_x > 0 and detection.size_y > 0:
+        box = detection
     return ScreenTrack(
         track_id=msg.id,
         status=int(msg.status),
-        center=np.array([msg.bbox.center.position.x, msg.bbox.center.position.y], dtype=float),
-        size=np.array([msg.bbox.size_x, msg.bbox.size_y], dtype=float),
+        center=np.array([box.center.position.x, box.center.position.y], dtype=float),
+        size=np.array([box.size_x, box.size_y], dtype=float),
         confidence=float(msg.confidence),
-        updated=abs(last_seen - stamp) <= UPDATED_TOLERANCE_S,
+        updated=updated,
         detection_count=int(msg.detection_count),
         first_seen=stamp_to_sec(msg.first_seen),
         last_seen=last_seen,
@@ -104,7 +114,8 @@ class FuserNode(Node):
                                                      reliable_qos(depth))
         self.get_logger().info(
             f"fuser: {input_topic} -> {output_topic}; camera heading {self.camera.heading_deg:.1f} deg, weights "
-            f"{s.fusion.weights_mode}, error model {100 * s.error_model.slope:.2f} m/100 m")
+            f"{s.fusion.weights_mode}, {s.fusion.screen_source} boxes, error model "
+            f"{100 * s.error_model.slope:.2f} m/100 m")
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
         """Fuse one image's tracks and publish them with their world state."""
@@ -112,7 +123,8 @@ class FuserNode(Node):
         if not math.isfinite(stamp):
             self.health.problem("nonfinite_stamp", PROBLEM_MESSAGES["nonfinite_stamp"])
             return
-        screen = [screen_track_from_msg(track, stamp) for track in msg.tracks]
+        source = self.settings.fusion.screen_source
+        screen = [screen_track_from_msg(track, stamp, source) for track in msg.tracks]
         world = self.core.update(stamp, screen)
         by_id = {id(w.screen): w for w in world}
         out = VesselTrackArray()

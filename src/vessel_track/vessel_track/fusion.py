@@ -31,6 +31,8 @@ from vessel_track.selection import OnlineTargetSelector, SelectionConfig
 from vessel_track.smoothing import FilterOutput, MotionConfig, WorldKalmanFilter
 
 WEIGHT_MODES = ("fitted", "paper", "position_only")
+#: Which box of a track the fuser measures: the detection associated in this image, or the tracker's filtered box.
+SCREEN_SOURCES = ("measured", "filtered")
 
 #: Covariance of the cues' ideal-y errors (position, width, height), px^2, measured leave-one-video-out on the
 #: hand boxes of training videos 7-12 (``python -m vessel_track.distance_model fit``).
@@ -122,6 +124,10 @@ class FusionConfig:
         hundreds of metres out there).
     clip_m: positions are clipped to ±clip_m east and north (the paper: 2000).
     min_depth_m: points closer than this in depth (behind or at the camera) are rejected.
+    screen_source: ``measured`` (the detection associated with the track in this image: independent
+        measurements for the world filter, which does the smoothing) or ``filtered`` (the tracker's filtered
+        box, which a second filter then smooths again). Measured on the training videos 7-12: the raw box is
+        better online and offline, with hand boxes and with the detector.
     """
 
     weights_mode: str = "fitted"
@@ -129,12 +135,16 @@ class FusionConfig:
     max_range_m: float = 2000.0
     clip_m: float = 2000.0
     min_depth_m: float = 1.0
+    screen_source: str = "measured"
 
     def __post_init__(self) -> None:
         """Validate the fields."""
         if self.weights_mode not in WEIGHT_MODES:
             raise DataError(f"fusion: weights_mode must be one of {', '.join(WEIGHT_MODES)}, got "
                             f"{self.weights_mode!r}")
+        if self.screen_source not in SCREEN_SOURCES:
+            raise DataError(f"fusion: screen_source must be one of {', '.join(SCREEN_SOURCES)}, got "
+                            f"{self.screen_source!r}")
         if not (math.isfinite(self.anchor) and 0.0 <= self.anchor <= 1.0):
             raise DataError(f"fusion: anchor must be in [0, 1] (0 top, 0.5 centre, 1 bottom), got {self.anchor!r}")
         for name in ("max_range_m", "clip_m", "min_depth_m"):
@@ -145,7 +155,8 @@ class FusionConfig:
     def to_params(self) -> dict:
         """The ``fusion`` parameters (without the cue statistics)."""
         return {"weights_mode": self.weights_mode, "anchor": float(self.anchor), "max_range_m": float(self.max_range_m),
-                "clip_m": float(self.clip_m), "min_depth_m": float(self.min_depth_m)}
+                "clip_m": float(self.clip_m), "min_depth_m": float(self.min_depth_m),
+                "screen_source": self.screen_source}
 
 
 @dataclass

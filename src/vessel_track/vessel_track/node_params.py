@@ -30,6 +30,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "fusion.max_range_m": ("Positions further than this from the camera are rejected, m.", (1.0, 1e6)),
     "fusion.clip_m": ("Positions are clipped to +-clip_m east and north (paper: 2000), m.", (1.0, 1e6)),
     "fusion.min_depth_m": ("Points closer than this depth in front of the camera are rejected, m.", (1e-3, 1e4)),
+    "fusion.screen_source": ("Box the fuser measures: measured (the detection associated in this image, "
+                             "VesselTrack.detection_bbox) or filtered (the tracker's filtered bbox).", None),
     "fusion.cue_covariance": ("3x3 covariance (row-major) of the ideal-y errors of the position, width and "
                               "height cues, px^2 (fitted).", None),
     "fusion.cue_x_std_px": ("Std of the box reference point's x, ideal px (fitted).", (1e-6, 1e4)),
@@ -43,7 +45,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "motion.manoeuvre_factor": ("A measurement outside the gate is retried with the process noise times this "
                                 "(hard turn or acceleration) before it counts as an outlier; 1 disables.",
                                 (1.0, 1e6)),
-    "selection.confidence_percentile": ("Percentile of detector confidences in the trajectory score (paper 80).",
+    "selection.confidence_percentile": ("Percentile of detector confidences in the trajectory score (paper 80; 50 "
+                                        "chosen with the appearance cue).",
                                         (0.0, 100.0)),
     "selection.min_step_m": ("Path steps shorter than this are not counted, m.", (0.0, 1e6)),
     "selection.path_noise_sigmas": ("A path step counts once it exceeds this many standard deviations of its "

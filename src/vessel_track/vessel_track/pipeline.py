@@ -1,7 +1,7 @@
 """The whole post-processing chain without ROS: detections -> tracker -> fusion -> selection -> positions.
 
     python -m vessel_track.pipeline --data DIR --videos 13-17 --detections labels|FILE.csv --out DIR
-        [--mode online|offline] [--calib FILE.yaml] [--params FILE.yaml] [--no-eval]
+        [--mode online|offline] [--calib FILE.yaml] [--params FILE.yaml] [--appearance MODEL.npz] [--no-eval]
 
 writes ``predictions.csv`` (``video,t_utc_s,lat,lon``: the vessel of interest), ``tracks.csv`` (every track,
 every frame) and then scores them (``vessel_track.evaluation``: ``summary.json``, ``scores.csv``, plots).
@@ -9,7 +9,9 @@ every frame) and then scores them (``vessel_track.evaluation``: ``summary.json``
 Detections: ``labels`` = the hand-labelled boxes of the vessel of interest (primary pass, score 1.0), one
 frame per labelled frame; ``FILE.csv`` = the detector's output, columns ``video,frame,x1,y1,x2,y2,score,class_id``
 (full-resolution pixels), where every frame of ``frames.csv`` of the chosen videos is a frame of the run
-(frames without a row had no detection).
+(frames without a row had no detection). ``--appearance config/appearance_aitas.npz`` rescores detector output
+with the appearance cue (``vessel_track.appearance``: score x probability of being the vessel of interest, boxes
+below probability 0.3 dropped), as the detector node would have to.
 
 Modes:
 
@@ -40,12 +42,11 @@ import numpy as np
 from vessel_calib import geodesy
 from vessel_calib.errors import DataError, VesselError
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
-from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
 from vessel_track.selection import Trajectory, select_target
 from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
 
 MODES = ("online", "offline")
-SCREEN_SOURCES = ("filtered", "measured")
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -192,11 +193,11 @@ def csv_detections(path: Path, dataset, videos) -> list[DetectionFrame]:
 # Running
 
 
-def screen_track_of(state, source: str = "filtered") -> ScreenTrack:
-    """A tracker ``TrackState`` as the fuser sees it.
+def screen_track_of(state, source: str = "measured") -> ScreenTrack:
+    """A tracker ``TrackState`` as the fuser sees it (``fuser_node.screen_track_from_msg`` does the same).
 
-    ``filtered``: the tracker's filtered box (what the tracker node publishes); ``measured``: the raw associated
-    detection when there is one.
+    ``measured``: the raw associated detection when there is one (``VesselTrack.detection_bbox``), else the
+    filtered box; ``filtered``: the tracker's filtered box (``VesselTrack.bbox``).
     """
     updated = state.measured_center is not None
     if source == "measured" and updated:
@@ -251,9 +252,8 @@ class PipelineConfig:
 
     mode: str = "online"
     screen_source: str | None = None
-    """``filtered`` (the tracker's box, what the tracker node publishes) or ``measured`` (the associated
-    detection); None: ``filtered`` online, ``measured`` offline (recorded data has the raw detections, and the
-    smoother should see independent measurements rather than the tracker's already filtered boxes)."""
+    """``measured`` (the associated detection) or ``filtered`` (the tracker's box); None: the fuser parameter
+    ``fusion.screen_source`` of ``settings``, which is what the fuser node uses."""
     max_coast_s: float = 12.0
     tracker: object = None   # TrackerConfig; None: the tracker's defaults
     settings: FuserSettings = field(default_factory=FuserSettings)
@@ -263,7 +263,7 @@ class PipelineConfig:
         if self.mode not in MODES:
             raise DataError(f"pipeline: mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.screen_source is None:
-            self.screen_source = "measured" if self.mode == "offline" else "filtered"
+            self.screen_source = self.settings.fusion.screen_source
         if self.screen_source not in SCREEN_SOURCES:
             raise DataError(f"pipeline: screen_source must be one of {', '.join(SCREEN_SOURCES)}")
 
@@ -499,8 +499,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mode", choices=MODES, default="online", help="online (as the nodes) or offline "
                                                                         "(plus the smoothing pass)")
     parser.add_argument("--screen-source", choices=SCREEN_SOURCES, default=None,
-                        help="box the fuser sees: the tracker's filtered box (as the nodes) or the raw detection "
-                             "(default: filtered online, measured offline)")
+                        help="box the fuser sees: the raw detection or the tracker's filtered box (default: the "
+                             "fuser parameter fusion.screen_source, as the nodes)")
     parser.add_argument("--calib", type=Path, default=None, help="calibration YAML (default: "
                                                                  "config/aitas_camera.yaml, else camera.json)")
     parser.add_argument("--params", type=Path, default=None, help="parameter YAML with the fuser block "
@@ -510,6 +510,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--leave-one-out", metavar="TRAIN_VIDEOS", default=None,
                         help="calibrate and fit the fusion for each video on these training videos minus that one "
                              "(e.g. 7-12 with --videos 7-12): out-of-sample scores for the error model fit")
+    parser.add_argument("--appearance", type=Path, default=None, metavar="MODEL.npz",
+                        help="rescore detector output with this appearance model (vessel_track.appearance; e.g. "
+                             "config/appearance_aitas.npz): score x probability, boxes below "
+                             "--appearance-min dropped")
+    parser.add_argument("--appearance-min", type=float, default=None,
+                        help="with --appearance: drop detections whose probability is below this (default 0.3)")
     parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
     parser.add_argument("--no-plots", action="store_true", help="score without plots")
     args = parser.parse_args(argv)
@@ -525,6 +531,13 @@ def main(argv: list[str] | None = None) -> int:
             frames = label_detections(dataset, videos)
         else:
             frames = csv_detections(Path(args.detections), dataset, videos)
+            if args.appearance is not None:
+                from vessel_track import appearance
+
+                model = appearance.AppearanceModel.load(args.appearance)
+                minimum = appearance.DEFAULT_MIN_PROBABILITY if args.appearance_min is None else args.appearance_min
+                frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
+                                            appearance.DEFAULT_COMBINE, minimum)
         config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
         if args.leave_one_out:
             results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config)

@@ -1,0 +1,521 @@
+"""The ROS-free vessel detector: an ONNX YOLO model run on the water band of a frame, whole or in tiles.
+
+Modes (``DetectorConfig.mode``):
+
+- ``full``: the whole frame, letterboxed into the network input (the plain way; small boats vanish: a 60 px
+  boat is 20 px at 416/1280).
+- ``band``: the band below the horizon (from the calibration, with a margin above it for masts and waves),
+  letterboxed whole.
+- ``tiled`` (default): overlapping windows of the band shown to the network at ``tile_scales`` network pixels
+  per image pixel (one tiling per scale; optionally only the top ``tile_strip_px`` of the band), plus
+  optionally the whole band in one pass (``global_pass``) for boats too large for a tile. Detections of all
+  windows are merged (see :mod:`vessel_detect.tiling`).
+
+Then boxes whose bottom lies above the band top (the sky, the far shore) and boxes mostly inside a static
+exclusion mask are dropped. Boxes come back in full-image pixels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from vessel_calib.errors import ModelError, VesselError
+from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
+from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
+from vessel_detect.model_store import ModelSpec, how_to_get, resolve_model, sha256_of
+from vessel_detect.tiling import (
+    Window,
+    WindowDetections,
+    cut_flags,
+    merge_windows,
+    nms_per_window,
+    tile_windows,
+)
+
+LETTERBOX_PAD_VALUE = 114
+MODES = ("full", "band", "tiled")
+CHALLENGE_HORIZON_Y = 418.0
+"""Screen y of the horizon of the challenge camera (1280x720), for when no calibration is at hand."""
+
+COCO_CLASSES: tuple[str, ...] = (
+    "person", "bicycle", "car", "motorbike", "aeroplane", "bus", "train", "truck", "boat", "traffic light",
+    "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep", "cow",
+    "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
+    "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
+    "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
+    "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "sofa",
+    "pottedplant", "bed", "diningtable", "toilet", "tvmonitor", "laptop", "mouse", "remote", "keyboard",
+    "cell phone", "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors",
+    "teddy bear", "hair drier", "toothbrush",
+)  # fmt: skip
+"""The 80 COCO class names in the order COCO-trained YOLO models output them (``boat`` is 8)."""
+
+CLASS_FILE_NAMES = ("coco_classes.txt", "classes.txt")
+
+
+@dataclass
+class Detections:
+    """Detections of one frame, in full-image pixels.
+
+    Attributes:
+        boxes_xyxy: ``(N, 4)`` float corners ``x1, y1, x2, y2``.
+        scores: ``(N,)`` confidence in [0, 1].
+        class_ids: ``(N,)`` int index into ``class_names``.
+        class_names: the model's class names (all of them, not only the detected ones).
+
+    """
+
+    boxes_xyxy: np.ndarray
+    scores: np.ndarray
+    class_ids: np.ndarray
+    class_names: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(self.scores.shape[0])
+
+    @staticmethod
+    def empty(class_names: Sequence[str] = ()) -> Detections:
+        """No detections."""
+        return Detections(np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=np.int64), list(class_names))
+
+    def labels(self) -> list[str]:
+        """Class name of each detection."""
+        return [self.class_names[i] if 0 <= i < len(self.class_names) else str(i) for i in self.class_ids]
+
+    def take(self, indices) -> Detections:
+        """The detections at ``indices`` (boolean mask or index array)."""
+        return Detections(self.boxes_xyxy[indices], self.scores[indices], self.class_ids[indices], self.class_names)
+
+
+@dataclass
+class DetectorConfig:
+    """Everything the detector core needs besides the model; the node's parameters map onto it 1:1."""
+
+    score_threshold: float = 0.15
+    nms_iou: float = 0.55
+    classes: tuple[str, ...] = ("boat",)
+    mode: str = "tiled"
+    band_margin_px: float = 40.0
+    band_bottom_px: float = 0.0
+    tile_scales: tuple[float, ...] = (1.25,)
+    tile_overlap_px: int = 96
+    tile_strip_px: float = 0.0
+    global_pass: bool = True
+    exclusion_polygons: tuple[str, ...] = DEFAULT_EXCLUSION_POLYGONS
+    mask_max_inside: float = 0.5
+    cut_edge_tolerance_px: float = 3.0
+    covered_threshold: float = 0.6
+
+    def validate(self) -> None:
+        """Reject values the detector cannot work with; the message names the parameter."""
+        checks = [
+            (0.0 <= self.score_threshold <= 1.0, "score_threshold must be in [0, 1]"),
+            (0.0 < self.nms_iou <= 1.0, "nms_iou must be in (0, 1]"),
+            (self.mode in MODES, f"mode '{self.mode}' unknown: use one of {', '.join(MODES)}"),
+            (self.band_margin_px >= 0, "band_margin_px must be >= 0"),
+            (self.band_bottom_px >= 0, "band_bottom_px must be >= 0 (0: the image bottom)"),
+            (len(self.tile_scales) > 0, "tile_scales must hold at least one scale"),
+            (all(0.05 <= s <= 8.0 for s in self.tile_scales), "tile_scales must each be in [0.05, 8]"),
+            (self.tile_overlap_px >= 0, "tile_overlap_px must be >= 0"),
+            (self.tile_strip_px >= 0, "tile_strip_px must be >= 0 (0: the whole band)"),
+            (0.0 <= self.mask_max_inside <= 1.0, "mask_max_inside must be in [0, 1]"),
+            (len(self.classes) > 0, "classes must name at least one class (e.g. ['boat'])"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise VesselError(f"detector configuration: {message}")
+
+
+def read_class_names(path: Path) -> list[str]:
+    """One class name per line (blank lines ignored)."""
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except OSError as error:
+        raise ModelError(f"cannot read class names file {path}: {error.strerror}") from None
+    names = [line.strip() for line in lines if line.strip()]
+    if not names:
+        raise ModelError(f"class names file {path} is empty: write one class name per line, in output order")
+    return names
+
+
+def find_class_names(model_path: Path, explicit: str | Path | None = None) -> list[str] | None:
+    """Class names from ``explicit``, else from a class file next to the model; None when there is none."""
+    if explicit:
+        return read_class_names(Path(explicit))
+    for name in (model_path.with_suffix(".names").name, *CLASS_FILE_NAMES):
+        candidate = model_path.parent / name
+        if candidate.is_file():
+            return read_class_names(candidate)
+    return None
+
+
+class OnnxModel:
+    """An onnxruntime session of a YOLO-family model, with its input size and output layout.
+
+    Args:
+        path: ONNX file.
+        intra_op_threads: onnxruntime intra-op threads (the detector's share of the CPU).
+        layout: ``auto`` (from the output shape), ``yolox``, ``yolov5`` or ``yolov8``.
+        class_names: class names in output order; None to find them next to the model, or COCO's when the
+            model has 80 classes.
+        input_size: (width, height) for models with a dynamic input size.
+        expected_sha256: only used in error messages.
+        how_to_get: how to obtain a good copy, appended to the error for an unreadable file.
+
+    Raises:
+        ModelError: not a readable ONNX model, input not a 3-channel image tensor, unknown output layout, or
+            class names that do not match the model.
+
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        intra_op_threads: int = 2,
+        layout: str = "auto",
+        class_names: Sequence[str] | None = None,
+        input_size: tuple[int, int] = (416, 416),
+        expected_sha256: str = "",
+        strides: tuple[int, ...] = DEFAULT_STRIDES,
+        how_to_get: str = "",
+    ):
+        import onnxruntime as ort
+
+        self.path = Path(path)
+        self.strides = tuple(strides)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = max(1, int(intra_op_threads))
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        except Exception as error:  # onnxruntime raises its own untyped errors for unreadable files
+            first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            expected = f", expected {expected_sha256}" if expected_sha256 else ""
+            fix = f"; {how_to_get}" if how_to_get else ""
+            raise ModelError(
+                f"model file {self.path} is not a usable ONNX model ({first_line[:200]}); its sha256 is "
+                f"{_safe_sha(self.path)}{expected}{fix}"
+            ) from None
+        inputs = self.session.get_inputs()
+        if len(inputs) != 1:
+            raise ModelError(
+                f"model {self.path} has {len(inputs)} inputs; the detector needs one image input (1, 3, H, W)"
+            )
+        model_input = inputs[0]
+        self.input_name = model_input.name
+        shape = list(model_input.shape)
+        if len(shape) != 4 or (isinstance(shape[1], int) and shape[1] != 3):
+            raise ModelError(
+                f"model {self.path} input '{model_input.name}' has shape {shape}: the detector needs a 3-channel "
+                "image tensor (1, 3, height, width), BGR"
+            )
+        if "float" not in model_input.type:
+            raise ModelError(
+                f"model {self.path} input '{model_input.name}' is {model_input.type}: the detector feeds float32 "
+                "pixels 0-255"
+            )
+        height = shape[2] if isinstance(shape[2], int) and shape[2] > 0 else int(input_size[1])
+        width = shape[3] if isinstance(shape[3], int) and shape[3] > 0 else int(input_size[0])
+        self.input_hw = (int(height), int(width))
+        self.output_name = self.session.get_outputs()[0].name
+        # One dry run: checks the model runs at all and gives the real output shape for dynamic models.
+        try:
+            probe = self.session.run(
+                [self.output_name],
+                {self.input_name: np.full((1, 3, *self.input_hw), LETTERBOX_PAD_VALUE, np.float32)},
+            )[0]
+        except Exception as error:
+            raise ModelError(f"model {self.path} fails on a {width}x{height} image: {str(error)[:300]}") from None
+        self.output_shape = tuple(probe.shape)
+        names = list(class_names) if class_names else find_class_names(self.path)
+        if layout == "auto":
+            try:
+                self.layout = detect_layout(self.output_shape, self.input_hw, None, strides)
+            except ModelError:
+                if not names:
+                    raise
+                self.layout = detect_layout(self.output_shape, self.input_hw, len(names), strides)
+        else:
+            try:
+                self.layout = OutputLayout(layout)
+            except ValueError:
+                raise ModelError(f"layout '{layout}' unknown: use auto, yolox, yolov5 or yolov8") from None
+        self.num_classes = self._class_count()
+        if names is None:
+            if self.num_classes == len(COCO_CLASSES):
+                names = list(COCO_CLASSES)
+            else:
+                raise ModelError(
+                    f"model {self.path} has {self.num_classes} classes and no class names were found: put one "
+                    "name per line in classes.txt next to the model or set class_names_file"
+                )
+        if len(names) != self.num_classes:
+            raise ModelError(
+                f"model {self.path} outputs {self.num_classes} classes but {len(names)} class names were given"
+            )
+        self.class_names = names
+
+    def _class_count(self) -> int:
+        dims = self.output_shape[1:] if len(self.output_shape) == 3 else self.output_shape
+        if self.layout is OutputLayout.YOLOV8:
+            return int(dims[0]) - 4
+        return int(dims[1]) - 5
+
+    def run(self, tensor: np.ndarray) -> np.ndarray:
+        """Run the network on one ``(1, 3, H, W)`` float32 tensor; return its first output."""
+        return self.session.run([self.output_name], {self.input_name: tensor})[0]
+
+
+def _safe_sha(path: Path) -> str:
+    try:
+        return sha256_of(path)
+    except OSError:
+        return "(unreadable)"
+
+
+def load_model(
+    spec: ModelSpec,
+    intra_op_threads: int = 2,
+    layout: str = "auto",
+    class_names_file: str = "",
+    cache_dir: Path | None = None,
+    allow_download: bool = True,
+) -> OnnxModel:
+    """Resolve (and if needed download and verify) the model, then open it."""
+    path = resolve_model(spec, cache_dir=cache_dir, allow_download=allow_download)
+    names = read_class_names(Path(class_names_file)) if class_names_file else None
+    return OnnxModel(
+        path, intra_op_threads, layout, names, expected_sha256=spec.expected_sha256, how_to_get=how_to_get(spec)
+    )
+
+
+@dataclass(frozen=True)
+class Letterbox:
+    """How a source crop was placed into the network input: resized by ``scale``, top-left, padded."""
+
+    scale: float
+    offset_x: float = 0.0
+    offset_y: float = 0.0
+
+    def to_source(self, boxes_xyxy: np.ndarray) -> np.ndarray:
+        """Network-input pixels -> source image pixels."""
+        boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4) / self.scale
+        return boxes + np.array([self.offset_x, self.offset_y, self.offset_x, self.offset_y])
+
+    def to_network(self, boxes_xyxy: np.ndarray) -> np.ndarray:
+        """Source image pixels -> network-input pixels."""
+        boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+        return (boxes - np.array([self.offset_x, self.offset_y, self.offset_x, self.offset_y])) * self.scale
+
+
+def letterbox(
+    bgr: np.ndarray, input_hw: tuple[int, int], scale: float | None = None, pad_value: int = LETTERBOX_PAD_VALUE
+) -> tuple[np.ndarray, float]:
+    """Resize keeping the aspect ratio, place at the top-left of an ``input_hw`` canvas of ``pad_value``.
+
+    Returns the ``(1, 3, H, W)`` float32 tensor (BGR, 0-255, no normalisation, as YOLOX expects) and the
+    scale used. ``scale`` (network px per source px) defaults to the largest that fits; the resized image is
+    cropped to the canvas if a given scale makes it larger.
+    """
+    in_h, in_w = input_hw
+    src_h, src_w = bgr.shape[:2]
+    if scale is None:
+        scale = min(in_h / src_h, in_w / src_w)
+    new_w = max(1, min(in_w, int(round(src_w * scale))))
+    new_h = max(1, min(in_h, int(round(src_h * scale))))
+    if (new_w, new_h) == (src_w, src_h):
+        resized = bgr
+    else:
+        full_w, full_h = max(1, int(round(src_w * scale))), max(1, int(round(src_h * scale)))
+        resized = cv2.resize(bgr, (full_w, full_h), interpolation=cv2.INTER_LINEAR)[:new_h, :new_w]
+    canvas = np.full((in_h, in_w, 3), pad_value, dtype=np.uint8)
+    canvas[:new_h, :new_w] = resized
+    tensor = np.ascontiguousarray(canvas.transpose(2, 0, 1)[None], dtype=np.float32)
+    return tensor, float(scale)
+
+
+def horizon_band_top(camera_model, image_wh: tuple[int, int] | None = None, samples: int = 65) -> float | None:
+    """Highest screen y of the horizon across the image width (the band starts there), None if undefined.
+
+    ``camera_model`` is a ``vessel_calib.camera_model.CameraModel``; the horizon curves with the lens, so the
+    line is sampled across the width and its top taken.
+    """
+    width = image_wh[0] if image_wh else camera_model.image_size[0]
+    xs = np.linspace(0.0, float(width), samples)
+    ys = np.asarray(camera_model.horizon_y(xs), dtype=np.float64)
+    ys = ys[np.isfinite(ys)]
+    if ys.size == 0:
+        return None
+    return float(ys.min())
+
+
+class VesselDetector:
+    """Detect vessels in BGR frames with an ONNX YOLO model (see the module docstring for the modes).
+
+    Args:
+        model: an :class:`OnnxModel`.
+        config: thresholds, classes, mode, band, tiles, masks.
+        horizon_y: screen y of the horizon (its top across the width) in pixels of ``reference_wh``; None
+            when unknown (the band then starts at the top of the image).
+        reference_wh: image size the horizon and the mask polygons refer to (the calibration's); frames of
+            another size get them scaled.
+
+    """
+
+    def __init__(
+        self,
+        model: OnnxModel,
+        config: DetectorConfig | None = None,
+        horizon_y: float | None = CHALLENGE_HORIZON_Y,
+        reference_wh: tuple[int, int] = (1280, 720),
+    ):
+        self.model = model
+        self.config = config or DetectorConfig()
+        self.config.validate()
+        self.horizon_y = None if horizon_y is None or not np.isfinite(horizon_y) else float(horizon_y)
+        self.reference_wh = (int(reference_wh[0]), int(reference_wh[1]))
+        unknown = [name for name in self.config.classes if name not in model.class_names]
+        if unknown:
+            raise ModelError(
+                f"class(es) {', '.join(unknown)} not among the model's classes "
+                f"({', '.join(model.class_names[:12])}{', ...' if len(model.class_names) > 12 else ''})"
+            )
+        self.class_indices = np.array([model.class_names.index(n) for n in self.config.classes], dtype=np.int64)
+        self.mask = ExclusionMask(list(self.config.exclusion_polygons), self.reference_wh)
+        self._plans: dict[tuple[int, int], list[tuple[Window, bool]]] = {}
+        self.last_window_count = 0
+
+    @property
+    def class_names(self) -> list[str]:
+        """The model's class names."""
+        return self.model.class_names
+
+    def band(self, image_wh: tuple[int, int]) -> tuple[float, float]:
+        """The processed band ``(top, bottom)`` in pixels of an image of ``image_wh``."""
+        width, height = image_wh
+        sy = height / self.reference_wh[1]
+        if self.horizon_y is None:
+            top = 0.0
+        else:
+            top = max(0.0, (self.horizon_y - self.config.band_margin_px) * sy)
+        bottom = float(height) if self.config.band_bottom_px <= 0 else min(height, self.config.band_bottom_px * sy)
+        if bottom <= top + 1:
+            top, bottom = 0.0, float(height)
+        return top, bottom
+
+    def windows(self, image_wh: tuple[int, int]) -> list[tuple[Window, bool]]:
+        """The windows run on an image of ``image_wh``: ``(window, is_tile)`` pairs (cached per size)."""
+        key = (int(image_wh[0]), int(image_wh[1]))
+        if key not in self._plans:
+            self._plans[key] = self._plan(key)
+        return self._plans[key]
+
+    def _plan(self, image_wh: tuple[int, int]) -> list[tuple[Window, bool]]:
+        width, height = image_wh
+        config = self.config
+        net_wh = (self.model.input_hw[1], self.model.input_hw[0])
+        if config.mode == "full":
+            return [(_whole_window(0, 0, width, height, net_wh, image_wh), False)]
+        top, bottom = self.band(image_wh)
+        itop, ibottom = int(np.floor(top)), int(np.ceil(bottom))
+        band_window = _whole_window(0, itop, width, ibottom, net_wh, image_wh)
+        if config.mode == "band":
+            return [(band_window, False)]
+        plan: list[tuple[Window, bool]] = []
+        if config.global_pass:
+            plan.append((band_window, False))
+        strip_bottom = bottom
+        if config.tile_strip_px > 0:
+            strip_bottom = min(bottom, top + config.tile_strip_px * height / self.reference_wh[1])
+        for scale in config.tile_scales:
+            plan += [
+                (window, True)
+                for window in tile_windows(
+                    (0, top, width, strip_bottom), image_wh, net_wh, scale, config.tile_overlap_px
+                )
+            ]
+        return plan
+
+    def detect(self, bgr: np.ndarray) -> Detections:
+        """Detect vessels in one BGR uint8 frame; boxes in the frame's pixels."""
+        image = np.asarray(bgr)
+        if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
+            raise VesselError(f"detector input must be a (H, W, 3) BGR image, got shape {image.shape}")
+        height, width = image.shape[:2]
+        plan = self.windows((width, height))
+        self.last_window_count = len(plan)
+        parts = []
+        windows = []
+        for index, (window, is_tile) in enumerate(plan):
+            windows.append(window)
+            crop = image[window.y0 : window.y1, window.x0 : window.x1]
+            tensor, scale = letterbox(crop, self.model.input_hw, window.scale if is_tile else None)
+            output = self.model.run(tensor)
+            candidates = decode(
+                output, self.model.layout, self.model.input_hw, self.class_indices,
+                self.config.score_threshold, self.model.strides,
+            )
+            if len(candidates) == 0:
+                continue
+            boxes = Letterbox(scale, window.x0, window.y0).to_source(candidates.boxes_xyxy)
+            boxes = np.clip(boxes, [window.x0, window.y0, window.x0, window.y0],
+                            [window.x1, window.y1, window.x1, window.y1])
+            tolerance = self.config.cut_edge_tolerance_px / scale
+            part = WindowDetections(
+                boxes, candidates.scores, candidates.class_ids,
+                np.full(len(candidates), index, dtype=np.int64), cut_flags(boxes, window, tolerance),
+            )
+            parts.append(nms_per_window(part, self.config.nms_iou))
+        merged = WindowDetections.concatenate(parts)
+        if len(plan) > 1:
+            merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold)
+        detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names)
+        detections = self._filter(detections, (width, height))
+        order = np.argsort(-detections.scores, kind="stable")
+        return detections.take(order)
+
+    def _filter(self, detections: Detections, image_wh: tuple[int, int]) -> Detections:
+        """Drop empty boxes, boxes standing above the band, and boxes mostly inside an exclusion mask."""
+        if len(detections) == 0:
+            return detections
+        boxes = detections.boxes_xyxy
+        keep = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
+        if self.config.mode != "full":
+            top, _ = self.band(image_wh)
+            keep &= boxes[:, 3] > top
+        if self.mask:
+            keep &= self.mask.keep(boxes, image_wh, self.config.mask_max_inside)
+        return detections.take(keep)
+
+
+def annotate(bgr: np.ndarray, detections: Detections, detector: VesselDetector, scale: float = 0.5) -> np.ndarray:
+    """A copy of the frame at ``scale`` with the processed band, the masks and the boxes with scores drawn."""
+    height, width = bgr.shape[:2]
+    size = (max(1, int(round(width * scale))), max(1, int(round(height * scale))))
+    image = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+    top, bottom = detector.band((width, height))
+    for y in (top, bottom - 1):
+        row = int(round(y * scale))
+        cv2.line(image, (0, row), (size[0] - 1, row), (255, 200, 0), 1)
+    for polygon in detector.mask.scaled_polygons((width, height)):
+        cv2.polylines(image, [np.round(polygon * scale).astype(np.int32)], True, (0, 0, 255), 1)
+    for box, score, label in zip(detections.boxes_xyxy, detections.scores, detections.labels(), strict=True):
+        x1, y1, x2, y2 = (int(round(v * scale)) for v in box)
+        cv2.rectangle(image, (x1, y1), (x2, y2), (0, 255, 0), 1)
+        cv2.putText(image, f"{label} {score:.2f}", (x1, max(8, y1 - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.35,
+                    (0, 255, 0), 1, cv2.LINE_AA)
+    return image
+
+
+def _whole_window(x0: int, y0: int, x1: int, y1: int, net_wh: tuple[int, int], image_wh: tuple[int, int]) -> Window:
+    """A window showing a whole region letterboxed; its edges inside the image count as cut edges."""
+    scale = min(net_wh[0] / max(1, x1 - x0), net_wh[1] / max(1, y1 - y0))
+    interior = (x0 > 0, y0 > 0, x1 < image_wh[0], y1 < image_wh[1])
+    return Window(int(x0), int(y0), int(x1), int(y1), float(scale), interior)
+

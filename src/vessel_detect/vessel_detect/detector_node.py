@@ -1,0 +1,264 @@
+"""Detector node: camera images in, ``vessel_msgs/Detection2DArray`` (vision_msgs-style) out.
+
+Subscribes to ``CompressedImage`` and/or ``Image`` (sensor-data QoS by default), runs the ROS-free
+:class:`vessel_detect.detector.VesselDetector` on the band below the horizon of the calibration, and publishes
+one ``Detection2DArray`` per processed image with the image's header (reliable, depth 10). Each detection has
+the box centre and size in full-resolution pixels and one hypothesis: ``class_id`` = the class name, ``score``.
+
+Inference runs in a worker thread on the newest image only: when images arrive faster than the detector runs,
+the ones it cannot take are skipped and counted (``dropped_frames``), so the output never lags behind a live
+camera. Bad images (unsupported encoding, size 0, undecodable bytes) are logged once per kind, counted and
+skipped. Latency, rates and counts go to ``/diagnostics``. A missing or corrupt model stops the node at start
+with one ``error:`` line (exit status 2).
+
+    ros2 run vessel_detect detector --ros-args --params-file config/aitas.yaml
+    ros2 run vessel_detect detector --ros-args -p mode:=band -p score_threshold:=0.3 -p publish_annotated:=true
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from sensor_msgs.msg import CompressedImage, Image
+
+from vessel_calib.errors import VesselError
+from vessel_calib.node_support import (
+    SENSOR_DATA_QOS,
+    NodeHealth,
+    declare_camera_model,
+    declare_parameter,
+    main_for,
+    reliable_qos,
+)
+from vessel_detect.detector import Detections, annotate
+from vessel_detect.detector_params import ALL_PARAMS, NODE_NAME, build_detector
+from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
+from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
+
+PROBLEM_KINDS = ("bad_encoding", "empty_image", "bad_image_size", "undecodable_image", "detector_error")
+EVENT_KINDS = ("frames_received", "frames_processed", "dropped_frames", "detections_published")
+LATENCY_WINDOW = 200
+
+
+def detections_to_msg(detections: Detections, header) -> Detection2DArray:
+    """A ``Detection2DArray`` with ``header`` for detections in full-resolution pixels."""
+    array = Detection2DArray()
+    array.header = header
+    labels = detections.labels()
+    for box, score, label in zip(detections.boxes_xyxy, detections.scores, labels, strict=True):
+        detection = Detection2D()
+        detection.header = header
+        x1, y1, x2, y2 = (float(v) for v in box)
+        detection.bbox.center.position.x = (x1 + x2) / 2.0
+        detection.bbox.center.position.y = (y1 + y2) / 2.0
+        detection.bbox.center.theta = 0.0
+        detection.bbox.size_x = x2 - x1
+        detection.bbox.size_y = y2 - y1
+        hypothesis = ObjectHypothesisWithPose()
+        hypothesis.hypothesis.class_id = label
+        hypothesis.hypothesis.score = float(score)
+        detection.results = [hypothesis]
+        detection.id = ""
+        array.detections.append(detection)
+    return array
+
+
+class DetectorNode(Node):
+    """Run the vessel detector on the newest camera image; see the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.values = {}
+        for spec in ALL_PARAMS:
+            kwargs = {}
+            if spec.float_range is not None:
+                kwargs["float_range"] = spec.float_range
+            if spec.int_range is not None:
+                kwargs["int_range"] = spec.int_range
+            try:
+                self.values[spec.name] = declare_parameter(
+                    self, spec.name, spec.default, spec.description, read_only=spec.read_only, **kwargs
+                )
+            except (ParameterException, TypeError, ValueError) as error:
+                raise VesselError(
+                    f"detector parameter '{spec.name}': {error} (expected a value like {spec.default!r})"
+                ) from None
+        camera = declare_camera_model(self)
+        self.detector = build_detector(self.values, camera)
+        if self.detector.horizon_y is None:
+            self.get_logger().warning("the calibration gives no horizon in the image: processing the whole height")
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.health = NodeHealth(self, hardware_id="detector")
+        for kind in PROBLEM_KINDS + EVENT_KINDS:
+            self.health.count(kind, 0)
+        for key in ("latency_ms_last", "latency_ms_p50", "latency_ms_p95", "input_to_output_ms_p50",
+                    "frames_per_s", "windows_per_frame", "detections_last"):
+            self.health.set_value(key, float("nan"))
+        self.health.set_value("windows_per_frame", len(self.detector.windows(self.detector.reference_wh)))
+
+        self._lock = threading.Condition()
+        self._latest: tuple[str, object, float] | None = None
+        self._stop = False
+        self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self._end_to_end: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self._processed_times: deque[float] = deque(maxlen=LATENCY_WINDOW)
+
+        values = self.values
+        self.detections_pub = self.create_publisher(
+            Detection2DArray, values["detections_topic"], reliable_qos(int(values["detections_qos_depth"]))
+        )
+        self.annotated_pub = None
+        if values["publish_annotated"]:
+            self.annotated_pub = self.create_publisher(Image, values["annotated_topic"], SENSOR_DATA_QOS)
+        qos = self._image_qos(values["image_qos"])
+        self._image_subscriptions = []
+        if values["subscribe_compressed"]:
+            self._image_subscriptions.append(self.create_subscription(
+                CompressedImage, values["compressed_topic"], lambda m: self._on_image("compressed", m), qos))
+        if values["subscribe_raw"]:
+            self._image_subscriptions.append(self.create_subscription(
+                Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
+        if not self._image_subscriptions:
+            raise VesselError("detector subscribes to nothing: set subscribe_compressed or subscribe_raw to true")
+        self.create_timer(1.0, self._report)
+        self._worker = threading.Thread(target=self._work, name="detector-worker", daemon=True)
+        self._worker.start()
+        topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
+        topics += [values["raw_topic"]] if values["subscribe_raw"] else []
+        config = self.detector.config
+        self.get_logger().info(
+            f"detecting {','.join(config.classes)} with {self.detector.model.path} ({self.detector.model.layout}, "
+            f"{config.mode}, {len(self.detector.windows(self.detector.reference_wh))} network runs per "
+            f"{self.detector.reference_wh[0]}x{self.detector.reference_wh[1]} frame, score >= "
+            f"{config.score_threshold}) on {', '.join(topics)} -> {values['detections_topic']}"
+        )
+
+    @staticmethod
+    def _image_qos(name: str):
+        if name == "sensor_data":
+            return SENSOR_DATA_QOS
+        if name == "reliable":
+            return reliable_qos(5)
+        raise VesselError(f"image_qos '{name}' unknown: use sensor_data or reliable")
+
+    def _on_set_parameters(self, parameters) -> SetParametersResult:
+        """Thresholds may change while running; everything else is read-only (declared so)."""
+        config = self.detector.config
+        updates = {}
+        for parameter in parameters:
+            if parameter.name in ("score_threshold", "nms_iou", "mask_max_inside"):
+                updates[parameter.name] = float(parameter.value)
+        if updates:
+            from dataclasses import replace
+
+            candidate = replace(config, **updates)
+            try:
+                candidate.validate()
+            except VesselError as error:
+                return SetParametersResult(successful=False, reason=str(error))
+            self.detector.config = candidate
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------------------------------------ input
+    def _on_image(self, kind: str, message) -> None:
+        """Keep only the newest image; one the worker did not take yet is dropped and counted."""
+        received = time.monotonic()
+        with self._lock:
+            self.health.count("frames_received")
+            if self._latest is not None:
+                self.health.count("dropped_frames")
+            self._latest = (kind, message, received)
+            self._lock.notify()
+
+    def _take(self) -> tuple[str, object, float] | None:
+        with self._lock:
+            while self._latest is None and not self._stop:
+                self._lock.wait(0.5)
+            if self._stop:
+                return None
+            item, self._latest = self._latest, None
+            return item
+
+    # ------------------------------------------------------------------------------------------------ worker
+    def _work(self) -> None:
+        while True:
+            item = self._take()
+            if item is None:
+                return
+            kind, message, received = item
+            try:
+                self._process(kind, message, received)
+            except ImageError as error:
+                self.health.problem(error.kind, f"bad image skipped: {error}")
+            except VesselError as error:
+                self.health.problem("detector_error", f"frame skipped: {error}")
+            except Exception as error:  # a bug must not silence the camera feed: count it and go on
+                self.health.problem("detector_error", f"frame skipped after an unexpected {type(error).__name__}: "
+                                    f"{error}")
+
+    def _process(self, kind: str, message, received: float) -> None:
+        started = time.monotonic()
+        if kind == "compressed":
+            bgr = compressed_to_bgr(message.data, message.format)
+        else:
+            bgr = image_to_bgr(message.encoding, message.height, message.width, message.step, message.data)
+        detections = self.detector.detect(bgr)
+        header = message.header
+        if not header.frame_id and self.values["frame_id"]:
+            header.frame_id = self.values["frame_id"]
+        self.detections_pub.publish(detections_to_msg(detections, header))
+        finished = time.monotonic()
+        self._latencies.append((finished - started) * 1000.0)
+        self._end_to_end.append((finished - received) * 1000.0)
+        self._processed_times.append(finished)
+        self.health.count("frames_processed")
+        self.health.count("detections_published", len(detections))
+        self.health.set_value("detections_last", len(detections))
+        if self.annotated_pub is not None and self.annotated_pub.get_subscription_count() > 0:
+            image = Image()
+            image.header = header
+            for field, value in bgr_to_image_fields(
+                annotate(bgr, detections, self.detector, float(self.values["annotated_scale"]))
+            ).items():
+                setattr(image, field, value)
+            self.annotated_pub.publish(image)
+
+    # ------------------------------------------------------------------------------------------------ health
+    def _report(self) -> None:
+        latencies = np.array(self._latencies)
+        if latencies.size:
+            self.health.set_value("latency_ms_last", float(latencies[-1]))
+            self.health.set_value("latency_ms_p50", float(np.percentile(latencies, 50)))
+            self.health.set_value("latency_ms_p95", float(np.percentile(latencies, 95)))
+            self.health.set_value("input_to_output_ms_p50", float(np.percentile(np.array(self._end_to_end), 50)))
+        times = list(self._processed_times)
+        if len(times) >= 2 and times[-1] > times[0]:
+            self.health.set_value("frames_per_s", (len(times) - 1) / (times[-1] - times[0]))
+        counts = self.health.counts
+        if counts.get("frames_received", 0) and not counts.get("frames_processed", 0):
+            self.health.set_status(DiagnosticStatus.WARN, "receiving images, none processed yet")
+        else:
+            self.health.set_status(DiagnosticStatus.OK, "running")
+
+    def close(self) -> None:
+        """Stop the worker thread (called by run_node at shutdown)."""
+        with self._lock:
+            self._stop = True
+            self._lock.notify_all()
+        if self._worker.is_alive():
+            self._worker.join(timeout=5.0)
+
+
+main = main_for(DetectorNode)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,235 @@
+"""The detector node's parameters in one table, shared by the node (which declares them) and the CLI tools.
+
+``./vessel detect run`` and the benchmark use exactly the node's defaults, or the ``detector:`` block of a
+parameter file, so a figure measured offline is the figure of the running node. No ROS import here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vessel_calib.errors import VesselError
+from vessel_detect.detector import (
+    CHALLENGE_HORIZON_Y,
+    DetectorConfig,
+    OnnxModel,
+    VesselDetector,
+    horizon_band_top,
+    load_model,
+)
+from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS
+from vessel_detect.model_store import ModelSpec
+
+NODE_NAME = "detector"
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: name, default (its type is the parameter's type), description, optional range."""
+
+    name: str
+    default: Any
+    description: str
+    float_range: tuple[float, float] | None = None
+    int_range: tuple[int, int] | None = None
+    read_only: bool = False
+
+
+MODEL_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("model_path", "", "ONNX model file; '' searches $VESSEL_MODEL, ../shared/models, the cache, "
+              "then downloads model_url.", read_only=True),
+    ParamSpec("model_url", "", "URL to download the model from into the cache ('' with no model_path: the "
+              "default YOLOX-Nano's URL).", read_only=True),
+    ParamSpec("model_sha256", "", "Expected sha256 of the model file ('' : the default model's when neither "
+              "model_path nor model_url is set; otherwise not checked).", read_only=True),
+    ParamSpec("model_cache_dir", "", "Download cache ('' : $VESSEL_MODEL_CACHE or "
+              "~/.cache/vessel_tracking/models).", read_only=True),
+    ParamSpec("allow_download", True, "Download model_url when the model is not found locally.",
+              read_only=True),
+    ParamSpec("class_names_file", "", "Class names, one per line in output order ('' : coco_classes.txt or "
+              "classes.txt next to the model, else COCO's for 80-class models).", read_only=True),
+    ParamSpec("layout", "auto", "Output layout: auto (from the output shape), yolox, yolov5 or yolov8.",
+              read_only=True),
+    ParamSpec("intra_op_threads", 2, "onnxruntime intra-op threads (the detector's share of the CPU).",
+              int_range=(1, 64), read_only=True),
+)
+
+DETECTION_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("classes", ["boat"], "Class names to detect (others are ignored).", read_only=True),
+    ParamSpec("score_threshold", 0.15, "Minimum confidence (objectness x class score) of a detection; the "
+              "tracker downstream handles the clutter of low values.", float_range=(0.0, 1.0)),
+    ParamSpec("nms_iou", 0.55, "IoU above which the weaker of two boxes of a class is suppressed.",
+              float_range=(0.01, 1.0)),
+    ParamSpec("mode", "tiled", "full (whole frame), band (the band below the horizon, letterboxed whole) or "
+              "tiled (overlapping windows of the band at tile_scales).", read_only=True),
+    ParamSpec("band_margin_px", 40.0, "Band starts this far above the horizon (masts, waves, calibration "
+              "error), pixels of the calibrated image size.", float_range=(0.0, 2000.0), read_only=True),
+    ParamSpec("band_bottom_px", 0.0, "Band ends at this image row (0: the image bottom).",
+              float_range=(0.0, 20000.0), read_only=True),
+    ParamSpec("tile_scales", [1.25], "Network pixels per image pixel of the tiles (several values: one tiling "
+              "per scale). 1.25 shows a 333x333 window to a 416x416 network.", read_only=True),
+    ParamSpec("tile_overlap_px", 96, "Minimum overlap of neighbouring tiles, image pixels (a boat narrower "
+              "than this is whole in some tile).", int_range=(0, 4096), read_only=True),
+    ParamSpec("tile_strip_px", 0.0, "Tiles cover only this many pixels below the band top (0: the whole "
+              "band); the global pass covers the rest.", float_range=(0.0, 20000.0), read_only=True),
+    ParamSpec("global_pass", True, "Tiled mode: also run the whole band letterboxed once, for boats too "
+              "large for a tile.", read_only=True),
+    ParamSpec("exclusion_polygons", list(DEFAULT_EXCLUSION_POLYGONS), "Static exclusion masks, one polygon "
+              "per string 'x,y x,y x,y ...' in pixels of the calibrated image size (default: the challenge "
+              "camera's mooring post); [''] for none.", read_only=True),
+    ParamSpec("mask_max_inside", 0.5, "A detection whose box lies more than this share inside a mask is "
+              "dropped.", float_range=(0.0, 1.0)),
+)
+
+NODE_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("compressed_topic", "/camera/image_raw/compressed", "CompressedImage input topic.",
+              read_only=True),
+    ParamSpec("raw_topic", "/camera/image_raw", "Image input topic.", read_only=True),
+    ParamSpec("subscribe_compressed", True, "Subscribe to compressed_topic.", read_only=True),
+    ParamSpec("subscribe_raw", False, "Subscribe to raw_topic.", read_only=True),
+    ParamSpec("image_qos", "sensor_data", "QoS of the image subscriptions: sensor_data (best effort) or "
+              "reliable.", read_only=True),
+    ParamSpec("detections_topic", "/vessel/detections", "Detection2DArray output topic (reliable).",
+              read_only=True),
+    ParamSpec("detections_qos_depth", 10, "History depth of the detections publisher.", int_range=(1, 1000),
+              read_only=True),
+    ParamSpec("publish_annotated", False, "Publish the annotated image (boxes, scores, band, masks).",
+              read_only=True),
+    ParamSpec("annotated_topic", "/vessel/detections/image", "Annotated image topic (Image, bgr8).",
+              read_only=True),
+    ParamSpec("annotated_scale", 0.5, "Scale of the annotated image (0.5: half resolution, lighter to send).",
+              float_range=(0.05, 1.0), read_only=True),
+    ParamSpec("frame_id", "", "frame_id for the output header when the image's is empty ('' : keep it).",
+              read_only=True),
+)
+
+ALL_PARAMS: tuple[ParamSpec, ...] = MODEL_PARAMS + DETECTION_PARAMS + NODE_PARAMS
+_BY_NAME = {spec.name: spec for spec in ALL_PARAMS}
+
+
+def default_values() -> dict[str, Any]:
+    """Every parameter at its default."""
+    return {spec.name: spec.default for spec in ALL_PARAMS}
+
+
+def merge_values(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Defaults overlaid with a parameter block (e.g. the ``detector:`` block of a YAML); unknown keys rejected."""
+    values = default_values()
+    for key, value in (overrides or {}).items():
+        if key in ("camera", "use_sim_time", "qos_overrides") or str(key).startswith(("camera.", "qos_overrides.")):
+            continue
+        if key not in _BY_NAME:
+            raise VesselError(
+                f"unknown detector parameter '{key}'; known: {', '.join(sorted(_BY_NAME))}"
+            )
+        default = _BY_NAME[key].default
+        values[key] = _coerce(key, value, default)
+    return values
+
+
+def _coerce(key: str, value: Any, default: Any) -> Any:
+    """Give a YAML value the parameter's type (ints for floats are fine, as ROS allows in YAML files)."""
+    try:
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise TypeError
+            return value
+        if isinstance(default, int):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise TypeError
+            return value
+        if isinstance(default, float):
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise TypeError
+            return float(value)
+        if isinstance(default, str):
+            if not isinstance(value, str):
+                raise TypeError
+            return value
+        if isinstance(default, list):
+            if not isinstance(value, list | tuple):
+                raise TypeError
+            if default and isinstance(default[0], float):
+                return [float(v) for v in value]
+            return [str(v) for v in value]
+    except (TypeError, ValueError):
+        pass
+    raise VesselError(f"detector parameter '{key}' = {value!r} has the wrong type; expected like {default!r}")
+
+
+def model_spec(values: Mapping[str, Any]) -> ModelSpec:
+    """The model named by the parameters."""
+    return ModelSpec(str(values["model_path"]), str(values["model_url"]), str(values["model_sha256"]))
+
+
+def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
+    """The core's configuration from parameter values (validated)."""
+    polygons = tuple(p for p in values["exclusion_polygons"] if str(p).strip())
+    config = DetectorConfig(
+        score_threshold=float(values["score_threshold"]),
+        nms_iou=float(values["nms_iou"]),
+        classes=tuple(str(c) for c in values["classes"] if str(c).strip()),
+        mode=str(values["mode"]),
+        band_margin_px=float(values["band_margin_px"]),
+        band_bottom_px=float(values["band_bottom_px"]),
+        tile_scales=tuple(float(s) for s in values["tile_scales"]),
+        tile_overlap_px=int(values["tile_overlap_px"]),
+        tile_strip_px=float(values["tile_strip_px"]),
+        global_pass=bool(values["global_pass"]),
+        exclusion_polygons=polygons,
+        mask_max_inside=float(values["mask_max_inside"]),
+    )
+    config.validate()
+    return config
+
+
+def open_model(values: Mapping[str, Any]) -> OnnxModel:
+    """Resolve, verify and open the model the parameters name."""
+    cache = str(values["model_cache_dir"]).strip()
+    return load_model(
+        model_spec(values),
+        intra_op_threads=int(values["intra_op_threads"]),
+        layout=str(values["layout"]),
+        class_names_file=str(values["class_names_file"]),
+        cache_dir=Path(cache).expanduser() if cache else None,
+        allow_download=bool(values["allow_download"]),
+    )
+
+
+def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxModel | None = None) -> VesselDetector:
+    """A detector core from parameter values and a ``CameraModel`` (None: the challenge camera's horizon)."""
+    config = detector_config(values)
+    if camera_model is None:
+        horizon, reference = CHALLENGE_HORIZON_Y, (1280, 720)
+    else:
+        reference = tuple(int(v) for v in camera_model.image_size)
+        horizon = horizon_band_top(camera_model)
+    return VesselDetector(model or open_model(values), config, horizon, reference)
+
+
+def load_params_file(path: str | Path | None, node_name: str = NODE_NAME) -> tuple[dict[str, Any], Any]:
+    """Detector values and the ``CameraModel`` of a parameter YAML (None path: defaults and no camera).
+
+    The detector block is the node's (``detector:``) overlaid on ``/**``'s non-camera keys; the camera is the
+    ``camera:`` block (``/**`` preferred).
+    """
+    if not path:
+        return default_values(), None
+    from vessel_calib.params import camera_block, read_params_yaml
+
+    blocks = read_params_yaml(path)
+    overrides: dict[str, Any] = {k: v for k, v in (blocks.get("/**") or {}).items() if k in _BY_NAME}
+    for name in (node_name, f"/{node_name}"):
+        overrides.update(blocks.get(name) or {})
+    camera = None
+    for name in ("/**", node_name, f"/{node_name}"):
+        block = camera_block(blocks.get(name) or {})
+        if block is not None:
+            from vessel_calib.camera_model import CameraModel
+
+            camera = CameraModel.from_params(block, where=f"{path}: camera")
+            break
+    return merge_values(overrides), camera

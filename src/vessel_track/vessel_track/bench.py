@@ -1,0 +1,1133 @@
+"""``./vessel bench``: the whole node graph's frames/s and latency against the detector core alone, in one run.
+
+One challenge video is replayed from its bag (looped, with shifted stamps, when more frames are asked for than
+it holds) and measured two ways, in alternating rounds so that a change of the shared machine's load weighs on
+both alike (every round: the core, then the graph, over the same frames; per-round figures are reported):
+
+1. **Detector core**, in this process: ``cv2.imdecode`` of each JPEG of the bag and ``VesselDetector.detect``,
+   frame after frame, the detector built from the detector node's parameters exactly as the node builds it.
+2. **The graph**: camera, detector, tracker, fuser and gps_publisher as separate processes (``GraphRunner``),
+   started once; per round the camera replays the bag at rate 0 (the next frame goes when the detections of the
+   previous one arrive). An in-process rclpy node notes when each image, detections, screen tracks, world tracks
+   and fix of the same header stamp was published (DDS source timestamp) and arrived. Frames/s end to end are
+   the world-track arrays out of the fuser over the wall time from the first image to the last array; latency
+   is image arrival to ``/vessel/fix`` arrival for the same frame (matched by stamp and occurrence: each round
+   repeats the stamps); the publication times give the time spent per stage.
+
+CPU seconds, CPU % (over the measured frames) and peak memory (VmHWM) of every node process come from
+``/proc/<pid>/stat`` and ``/proc/<pid>/status``, sampled until just before the graph is stopped.
+
+    ./vessel bench --frames 72 --out out/bench/bench.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import random
+import struct
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from vessel_calib.errors import DataError, VesselError
+from vessel_track.graph import (
+    GRAPH_NODES,
+    GraphRunner,
+    default_calibration_file,
+    default_params_file,
+    repo_root,
+)
+
+IMAGE_TOPIC = "/camera/image_raw/compressed"
+DETECTIONS_TOPIC = "/vessel/detections"
+SCREEN_TOPIC = "/vessel/tracks/screen"
+TRACKS_TOPIC = "/vessel/tracks"
+FIX_TOPIC = "/vessel/fix"
+DIAGNOSTICS_TOPIC = "/diagnostics"
+CHAIN = (IMAGE_TOPIC, DETECTIONS_TOPIC, SCREEN_TOPIC, TRACKS_TOPIC, FIX_TOPIC)
+"""The topics one frame passes, in order; every message carries the image's header stamp."""
+
+STAGES = (
+    ("camera -> detector", IMAGE_TOPIC, DETECTIONS_TOPIC),
+    ("detector -> tracker", DETECTIONS_TOPIC, SCREEN_TOPIC),
+    ("tracker -> fuser", SCREEN_TOPIC, TRACKS_TOPIC),
+    ("fuser -> gps_publisher", TRACKS_TOPIC, FIX_TOPIC),
+)
+"""Per-stage time: from the publication of one topic to the publication of the next, same frame.
+
+"camera -> detector" is the image's transport to the detector, its decoding, detection and the publication
+of the detections.
+"""
+
+DEFAULT_VIDEO = 13
+DEFAULT_FRAMES = 72
+DEFAULT_WARMUP = 3
+DEFAULT_ROUNDS = 3
+RATIO_TARGET = 0.8
+CAMERA_ACK_TIMEOUT_S = 10.0
+"""The camera sends the next frame after this long without detections (a lost frame); counted, reported."""
+CONNECT_TIMEOUT_S = 90.0
+END_SETTLE_S = 3.0
+CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+
+
+class GraphError(Exception):
+    """A node of the graph died or the graph delivered no frame; the message holds the node's log tail."""
+
+
+def log(message: str) -> None:
+    """Progress on stderr, so stdout keeps only the table."""
+    print(f"[bench] {message}", file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Statistics
+# --------------------------------------------------------------------------------------------------------------
+def summary_ms(values_s: Sequence[float]) -> dict[str, float | int]:
+    """Median, p95, mean, min, max (milliseconds) and count of durations given in seconds; NaN when empty."""
+    values = np.asarray([v for v in values_s if math.isfinite(v)], dtype=float) * 1000.0
+    if values.size == 0:
+        nan = float("nan")
+        return {"p50": nan, "p95": nan, "mean": nan, "min": nan, "max": nan, "n": 0}
+    return {
+        "p50": float(np.percentile(values, 50)),
+        "p95": float(np.percentile(values, 95)),
+        "mean": float(values.mean()),
+        "min": float(values.min()),
+        "max": float(values.max()),
+        "n": int(values.size),
+    }
+
+
+# --------------------------------------------------------------------------------------------------------------
+# /proc: CPU time and memory of a process
+# --------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ProcSample:
+    """CPU seconds (user + system, all threads) and memory of one process at one wall time."""
+
+    wall_s: float
+    cpu_s: float
+    rss_kb: int
+    hwm_kb: int
+
+
+def read_proc(pid: int) -> ProcSample | None:
+    """Sample ``/proc/<pid>/stat`` and ``/proc/<pid>/status``; None when the process is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return None
+    # The command name (field 2) may hold spaces and parentheses: the fields after its closing one are fixed.
+    fields_after_name = stat[stat.rindex(")") + 2 :].split()
+    utime, stime = int(fields_after_name[11]), int(fields_after_name[12])  # fields 14 and 15 of proc(5)
+    memory = {}
+    for line in status.splitlines():
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "VmHWM"):
+            memory[key] = int(value.split()[0])
+    return ProcSample(time.monotonic(), (utime + stime) / CLOCK_TICKS_PER_S, memory.get("VmRSS", 0),
+                      memory.get("VmHWM", 0))
+
+
+def process_cmdline(pid: int) -> list[str]:
+    """The command line of a process (empty when it is gone)."""
+    try:
+        raw = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return []
+    return [part.decode(errors="replace") for part in raw.split(b"\0") if part]
+
+
+def node_pid(pid: int, executable: str) -> int:
+    """The pid of the process running ``executable``.
+
+    That is ``pid`` itself for the project's console scripts (the shebang makes the kernel run the interpreter
+    in that process); behind a wrapper (a shell script), the child that runs it.
+    """
+    if any(Path(arg).name == executable for arg in process_cmdline(pid)[:2]):
+        return pid
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return pid
+    for child in children:
+        if any(Path(arg).name == executable for arg in process_cmdline(int(child))[:2]):
+            return int(child)
+    return pid
+
+
+@dataclass
+class NodeUsage:
+    """CPU and memory of one node process over the measured frames and its whole life."""
+
+    name: str
+    pid: int
+    cpu_s_total: float
+    cpu_s_measured: float
+    cpu_percent: float
+    peak_mb: float
+    rss_mb: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        """JSON-ready figures."""
+        return {"pid": self.pid, "cpu_s_total": self.cpu_s_total, "cpu_s_measured": self.cpu_s_measured,
+                "cpu_percent": self.cpu_percent, "peak_mb": self.peak_mb, "rss_mb": self.rss_mb}
+
+
+def node_usage(name: str, pid: int, start: ProcSample | None, end: ProcSample | None) -> NodeUsage | None:
+    """CPU % between two samples (100 % = one core busy) and the peak memory at the end sample."""
+    if end is None:
+        return None
+    measured = end.cpu_s - start.cpu_s if start is not None else float("nan")
+    wall = end.wall_s - start.wall_s if start is not None else float("nan")
+    percent = 100.0 * measured / wall if start is not None and wall > 0 else float("nan")
+    return NodeUsage(name, pid, end.cpu_s, measured, percent, end.hwm_kb / 1024.0, end.rss_kb / 1024.0)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Parameters: what a node reads from the parameter files, and the detector core built from it
+# --------------------------------------------------------------------------------------------------------------
+def _flatten(prefix: str, values: dict, out: dict[str, object]) -> None:
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            _flatten(f"{name}.", value, out)
+        else:
+            out[name] = value
+
+
+def node_parameters(params_files: Sequence[Path], node_name: str) -> dict[str, object]:
+    """The parameters a node named ``node_name`` gets from ``--params-file`` files, later files winning.
+
+    Follows the ROS rules the nodes see: blocks under ``/**``, ``/*``, the node's name or ``/name`` apply;
+    nested keys become dotted names (``camera: {H: ...}`` -> ``camera.H``).
+    """
+    matching = {"/**", "/*", node_name, f"/{node_name}"}
+    merged: dict[str, object] = {}
+    for path in params_files:
+        try:
+            document = yaml.safe_load(Path(path).read_text()) or {}
+        except (OSError, yaml.YAMLError) as error:
+            raise DataError(f"parameter file {path} cannot be read: {error}") from None
+        if not isinstance(document, dict):
+            raise DataError(f"parameter file {path} is not a mapping of node names to ros__parameters")
+        for key, block in document.items():
+            if str(key) in matching and isinstance(block, dict):
+                _flatten("", dict(block.get("ros__parameters") or {}), merged)
+    return merged
+
+
+@dataclass
+class CoreDetector:
+    """The detector core as the node builds it, and what the report says about it."""
+
+    detect: Callable[[np.ndarray], object]
+    mode: str
+    threads: int
+    windows_per_frame: Callable[[], int]
+    model_path: str
+
+
+def build_core_detector(parameters: dict[str, object]) -> CoreDetector:
+    """Build the detector core from the detector node's parameters, the way the node does.
+
+    The node declares the parameters of ``detector_params.ALL_PARAMS`` (others in the file do not reach it) and
+    the ``camera.*`` calibration (``declare_camera_model``: its keys, the challenge camera's values by default),
+    then calls ``detector_params.build_detector(values, camera)``; so does this.
+    """
+    from vessel_calib.camera_model import CameraModel
+    from vessel_calib.node_support import DEFAULT_CAMERA_PARAMETERS
+    from vessel_detect.detector_params import ALL_PARAMS, build_detector, merge_values
+
+    declared = {spec.name for spec in ALL_PARAMS}
+    values = merge_values({key: value for key, value in parameters.items() if key in declared})
+    camera_values = {key: parameters.get(f"camera.{key}", default)
+                     for key, default in DEFAULT_CAMERA_PARAMETERS.items()}
+    camera = CameraModel.from_params(camera_values, where="camera (detector parameters)")
+    detector = build_detector(values, camera)
+    return CoreDetector(
+        detect=detector.detect,
+        mode=detector.config.mode,
+        threads=int(values["intra_op_threads"]),
+        windows_per_frame=lambda: len(detector.windows(detector.reference_wh)),
+        model_path=str(detector.model.path),
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The frames: the bag of one video, looped to the number of frames wanted
+# --------------------------------------------------------------------------------------------------------------
+def prepare_bag(video: int, data: Path | None, bags: Path | None) -> Path:
+    """The bag folder of ``video``; built from the dataset when missing."""
+    from vessel_calib.dataset import default_data_dir
+
+    shared = default_data_dir()
+    is_shared = data is None or (shared is not None and Path(data).resolve() == shared.resolve())
+    root = bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
+    bag = root / f"video_{video}"
+    if (bag / "metadata.yaml").is_file():
+        return bag
+    source = data or shared
+    if source is None or not (Path(source) / "frames.csv").is_file():
+        raise DataError(
+            f"no bag at {bag} and no dataset to build it from: pass --data DIR (a folder laid out like "
+            f"../shared/aitas), set VESSEL_DATA, or build it with ./vessel bag build --data DIR --videos {video} "
+            f"--out {root}"
+        )
+    from vessel_detect.bag_build import BuildOptions, build_from_dataset
+
+    log(f"building the bag of video {video} from {source} into {root}")
+    build_from_dataset(Path(source), root, [video], BuildOptions(overwrite=True), report=log)
+    return bag
+
+
+def read_bag_jpegs(bag: Path) -> list[tuple[float, bytes]]:
+    """(stamp s, JPEG bytes) of every image of the bag, in order."""
+    from vessel_detect.bag_io import BagReader
+
+    with BagReader(bag) as reader:
+        frames = list(reader.images())
+    if not frames:
+        raise DataError(f"bag {bag} holds no image: rebuild it with ./vessel bag build")
+    return frames
+
+
+def looped(frames: Sequence[tuple[float, bytes]], count: int) -> list[bytes]:
+    """The first ``count`` JPEGs the camera publishes when it loops over ``frames``."""
+    return [frames[i % len(frames)][1] for i in range(count)]
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 1. The detector core alone
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class CoreTimes:
+    """Seconds per frame of the detector core: decode, detect and both."""
+
+    decode_s: list[float] = field(default_factory=list)
+    detect_s: list[float] = field(default_factory=list)
+    cpu_s: list[float] = field(default_factory=list)
+    """CPU seconds of this process (every thread, i.e. onnxruntime's too) per frame."""
+
+    def __add__(self, other: CoreTimes) -> CoreTimes:
+        return CoreTimes(self.decode_s + other.decode_s, self.detect_s + other.detect_s, self.cpu_s + other.cpu_s)
+
+    def cpu_percent(self) -> float:
+        """CPU time over wall time while the core ran (100 % = one core busy)."""
+        wall = sum(self.total_s)
+        return 100.0 * sum(self.cpu_s) / wall if wall > 0 else float("nan")
+
+    @property
+    def total_s(self) -> list[float]:
+        """Decode + detect per frame."""
+        return [a + b for a, b in zip(self.decode_s, self.detect_s, strict=True)]
+
+    def fps(self) -> float:
+        """Frames per second of decode + detect, back to back."""
+        total = sum(self.total_s)
+        return len(self.decode_s) / total if total > 0 else float("nan")
+
+
+def run_core(core: CoreDetector, jpegs: Sequence[bytes], times: CoreTimes | None = None) -> CoreTimes:
+    """Decode and detect each JPEG, timing both; appends to ``times`` when given."""
+    import cv2
+
+    times = times if times is not None else CoreTimes()
+    for jpeg in jpegs:
+        cpu_started = time.process_time()
+        started = time.perf_counter()
+        image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+        decoded = time.perf_counter()
+        if image is None:
+            raise DataError("a JPEG of the bag does not decode: rebuild the bag with ./vessel bag build")
+        core.detect(image)
+        done = time.perf_counter()
+        times.cpu_s.append(time.process_time() - cpu_started)
+        times.decode_s.append(decoded - started)
+        times.detect_s.append(done - decoded)
+    return times
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 2. The graph, watched from this process
+# --------------------------------------------------------------------------------------------------------------
+def header_stamp_ns(cdr: bytes) -> int:
+    """The header stamp of a serialised message whose first field is a ``std_msgs/Header`` (CDR)."""
+    little = len(cdr) > 1 and cdr[1] & 1
+    sec, nanosec = struct.unpack_from("<iI" if little else ">iI", cdr, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """One message of one frame on one topic: header stamp, its occurrence, and when it went and came (ns).
+
+    ``published_ns`` is the DDS source timestamp (the publisher's clock, CLOCK_REALTIME), ``received_ns`` the
+    watcher's reception by the middleware (before any Python queueing); both fall back to the callback time
+    when the middleware gives none. ``occurrence`` counts earlier messages with the same stamp on the topic, so
+    frames whose stamps repeat (a loop without restamping) are matched in order.
+    """
+
+    stamp_ns: int
+    occurrence: int
+    published_ns: int
+    received_ns: int
+
+    @property
+    def key(self) -> tuple[int, int]:
+        """Which frame: (occurrence, stamp), in the order the camera sent them."""
+        return (self.occurrence, self.stamp_ns)
+
+
+class ArrivalLog:
+    """Arrivals per topic, keyed by frame."""
+
+    def __init__(self, topics: Sequence[str]):
+        self.by_topic: dict[str, dict[tuple[int, int], Arrival]] = {topic: {} for topic in topics}
+        self._occurrences: dict[str, dict[int, int]] = {topic: {} for topic in topics}
+
+    def add(self, topic: str, stamp_ns: int, published_ns: int, received_ns: int) -> Arrival:
+        """Record one message."""
+        seen = self._occurrences[topic]
+        occurrence = seen.get(stamp_ns, 0)
+        seen[stamp_ns] = occurrence + 1
+        arrival = Arrival(stamp_ns, occurrence, published_ns, received_ns)
+        self.by_topic[topic][arrival.key] = arrival
+        return arrival
+
+    def count(self, topic: str) -> int:
+        """Messages seen on a topic."""
+        return len(self.by_topic[topic])
+
+    def frames(self) -> list[tuple[int, int]]:
+        """Every frame seen on any topic, in the order the camera sent them."""
+        keys: set[tuple[int, int]] = set()
+        for arrivals in self.by_topic.values():
+            keys.update(arrivals)
+        return sorted(keys)
+
+
+def _message_info_times(info) -> tuple[int, int]:
+    now = time.time_ns()
+    if not isinstance(info, dict):
+        return now, now
+    return int(info.get("source_timestamp") or now), int(info.get("received_timestamp") or now)
+
+
+class BenchWatcher:
+    """An in-process node in its own context: notes each frame's messages along the graph and the diagnostics."""
+
+    def __init__(self, domain_id: int):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.context import Context
+        from rclpy.signals import SignalHandlerOptions
+        from sensor_msgs.msg import CompressedImage, NavSatFix
+
+        from vessel_calib.node_support import SENSOR_DATA_QOS, reliable_qos
+        from vessel_msgs.msg import Detection2DArray, VesselTrackArray
+
+        self._rclpy = rclpy
+        self.context = Context()
+        # No rclpy signal handlers: Ctrl-C must reach this program as KeyboardInterrupt, so that every node is
+        # stopped on the way out (rclpy's handler would only shut this context down and swallow it).
+        rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("bench_watcher", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.log = ArrivalLog(CHAIN)
+        self.fixes_with_position = 0
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        # Serialised messages (raw=True): the watcher reads only the header stamp, so a 200 kB image costs it
+        # no deserialisation while the graph runs.
+        self.subscriptions = {
+            IMAGE_TOPIC: self.node.create_subscription(
+                CompressedImage, IMAGE_TOPIC, self._raw_callback(IMAGE_TOPIC), SENSOR_DATA_QOS, raw=True),
+            DETECTIONS_TOPIC: self.node.create_subscription(
+                Detection2DArray, DETECTIONS_TOPIC, self._raw_callback(DETECTIONS_TOPIC), reliable_qos(100),
+                raw=True),
+            SCREEN_TOPIC: self.node.create_subscription(
+                VesselTrackArray, SCREEN_TOPIC, self._raw_callback(SCREEN_TOPIC), reliable_qos(100), raw=True),
+            TRACKS_TOPIC: self.node.create_subscription(
+                VesselTrackArray, TRACKS_TOPIC, self._raw_callback(TRACKS_TOPIC), reliable_qos(100), raw=True),
+            FIX_TOPIC: self.node.create_subscription(NavSatFix, FIX_TOPIC, self._on_fix, reliable_qos(100)),
+        }
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, reliable_qos(50))
+
+    def _raw_callback(self, topic: str):
+        def on_message(cdr, info) -> None:
+            published, received = _message_info_times(info)
+            self.log.add(topic, header_stamp_ns(cdr), published, received)
+
+        return on_message
+
+    def _on_fix(self, fix, info) -> None:
+        published, received = _message_info_times(info)
+        stamp = fix.header.stamp
+        self.log.add(FIX_TOPIC, stamp.sec * 1_000_000_000 + stamp.nanosec, published, received)
+        if fix.status.status >= 0 and math.isfinite(fix.latitude) and math.isfinite(fix.longitude):
+            self.fixes_with_position += 1
+
+    def _on_diagnostics(self, array) -> None:
+        for status in array.status:
+            values = {kv.key: kv.value for kv in status.values}
+            values["_message"] = status.message
+            self.diagnostics[status.name] = values
+
+    def spin(self, seconds: float) -> None:
+        """Process callbacks for a while."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def connected(self) -> bool:
+        """Every link from the detector to this watcher is there (the camera is started after)."""
+        count = self.node.count_subscribers
+        links = [
+            count(IMAGE_TOPIC) >= 2,  # detector + watcher
+            count(DETECTIONS_TOPIC) >= 2,  # tracker + watcher
+            count(SCREEN_TOPIC) >= 2,  # fuser + watcher
+            count(TRACKS_TOPIC) >= 2,  # gps_publisher + watcher
+        ]
+        links += [self.subscriptions[topic].get_publisher_count() >= 1 for topic in CHAIN[1:]]
+        return all(links)
+
+    def close(self) -> None:
+        """Shut the watcher's context down."""
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+@dataclass
+class GraphRun:
+    """What the watcher saw and /proc said while the graph ran its rounds."""
+
+    log: ArrivalLog
+    warmup: int
+    requested: int
+    usage: list[NodeUsage]
+    diagnostics: dict[str, dict[str, str]]
+    fixes_with_position: int
+    statuses: dict[str, int]
+    watcher_usage: NodeUsage | None
+
+
+def rounds_of(log: ArrivalLog) -> list[list[tuple[int, int]]]:
+    """The frames of each round in the order they were sent.
+
+    Every round replays the same (restamped when looping, so unique) stamps from the start of the bag, so a
+    frame's occurrence count is its round.
+    """
+    by_round: dict[int, list[tuple[int, int]]] = {}
+    for key in log.frames():
+        by_round.setdefault(key[0], []).append(key)
+    return [by_round[r] for r in sorted(by_round)]
+
+
+def measured_frames(log: ArrivalLog, warmup: int) -> list[list[tuple[int, int]]]:
+    """Per round, the frames after its warm-up ones."""
+    return [frames[warmup:] for frames in rounds_of(log)]
+
+
+def graph_figures(run: GraphRun) -> dict[str, object]:
+    """Frames/s end to end, latency (arrival and publish based), per-stage times, the camera's turnaround."""
+    log = run.log
+    per_round = measured_frames(log, run.warmup)
+    frames = [key for keys in per_round for key in keys]
+    images = log.by_topic[IMAGE_TOPIC]
+    detections = log.by_topic[DETECTIONS_TOPIC]
+    tracks = log.by_topic[TRACKS_TOPIC]
+    out_frames = [key for key in frames if key in tracks]
+    empty = summary_ms([])
+    figures: dict[str, object] = {
+        "frames_measured": len(out_frames),
+        "frames_requested": run.requested,
+        "graph_fps": float("nan"),
+        "graph_fps_per_round": [],
+        "graph_wall_s": float("nan"),
+        "graph_interval_ms": empty,
+        "latency_fix_ms": empty,
+        "latency_tracks_ms": empty,
+        "latency_fix_published_ms": empty,
+        "stages_ms": {name: empty for name, _, _ in STAGES},
+        "camera_turnaround_ms": empty,
+        "counts": {topic: log.count(topic) for topic in CHAIN},
+        "fixes_with_position": run.fixes_with_position,
+    }
+    if not out_frames:
+        return figures
+    walls, outs, intervals, turnaround = [], [], [], []
+    for sent, measured in zip(rounds_of(log), per_round, strict=True):
+        out = [key for key in measured if key in tracks]
+        if not out:
+            continue
+        first = measured[0]
+        if first in images:
+            start_ns = images[first].received_ns
+        else:  # the watcher missed that image (best effort): it left the camera after the previous frame's output
+            earlier = [tracks[k].received_ns for k in sent[: sent.index(first)] if k in tracks]
+            start_ns = max(earlier) if earlier else min(tracks[k].received_ns for k in out)
+        walls.append((max(tracks[k].received_ns for k in out) - start_ns) / 1e9)
+        outs.append(len(out))
+        arrivals = sorted(tracks[k].received_ns for k in out)
+        intervals += list(np.diff(arrivals) / 1e9)
+        # The camera's part of each frame period: from one frame's detections to the next image's publication.
+        turnaround += [
+            (images[nxt].published_ns - detections[cur].published_ns) / 1e9
+            for cur, nxt in zip(sent, sent[1:], strict=False)
+            if cur in detections and nxt in images and nxt in measured
+        ]
+    total_wall = sum(walls)
+    figures["graph_wall_s"] = total_wall
+    figures["graph_fps"] = sum(outs) / total_wall if total_wall > 0 else float("nan")
+    figures["graph_fps_per_round"] = [n / w if w > 0 else float("nan") for n, w in zip(outs, walls, strict=True)]
+    figures["graph_interval_ms"] = summary_ms(intervals)
+    figures["camera_turnaround_ms"] = summary_ms(turnaround)
+
+    def between(source: str, target: str, use: str) -> list[float]:
+        a, b = log.by_topic[source], log.by_topic[target]
+        return [(getattr(b[k], use) - getattr(a[k], use)) / 1e9 for k in frames if k in a and k in b]
+
+    figures["latency_fix_ms"] = summary_ms(between(IMAGE_TOPIC, FIX_TOPIC, "received_ns"))
+    figures["latency_tracks_ms"] = summary_ms(between(IMAGE_TOPIC, TRACKS_TOPIC, "received_ns"))
+    figures["latency_fix_published_ms"] = summary_ms(between(IMAGE_TOPIC, FIX_TOPIC, "published_ns"))
+    figures["stages_ms"] = {name: summary_ms(between(a, b, "published_ns")) for name, a, b in STAGES}
+    return figures
+
+
+class ProcMonitor:
+    """CPU time and memory of the node processes and of this one, from /proc, over the measured frames.
+
+    A measuring window opens when a round's measured frames start and closes after its last one; the CPU time
+    of every window adds up. Each process keeps its latest sample (one that has exited keeps the one before);
+    a process replaced under the same name (the camera, once per round) adds its totals to its successor's.
+    """
+
+    OWN = "(bench watcher)"
+
+    def __init__(self):
+        self.pids: dict[str, int] = {}
+        self.last: dict[str, ProcSample] = {}
+        self._window_start: dict[str, ProcSample | None] | None = None
+        self._measured_cpu: dict[str, float] = {}
+        self._measured_wall: dict[str, float] = {}
+        self._retired_cpu: dict[str, float] = {}
+        self._retired_hwm: dict[str, int] = {}
+        self._last_sample = 0.0
+
+    def add(self, name: str, pid: int) -> None:
+        """Watch a process (replacing, and keeping the totals of, an earlier one of the same name)."""
+        previous = self.last.pop(name, None)
+        if previous is not None:
+            self._retired_cpu[name] = self._retired_cpu.get(name, 0.0) + previous.cpu_s
+            self._retired_hwm[name] = max(self._retired_hwm.get(name, 0), previous.hwm_kb)
+        self.pids[name] = pid
+
+    def _all_pids(self) -> dict[str, int]:
+        return {**self.pids, self.OWN: os.getpid()}
+
+    @property
+    def window_open(self) -> bool:
+        """A measuring window is open."""
+        return self._window_start is not None
+
+    def open_window(self) -> None:
+        """Measured frames start now."""
+        self._window_start = {name: read_proc(pid) for name, pid in self._all_pids().items()}
+        self.sample()
+
+    def sample(self, min_interval_s: float = 0.0) -> None:
+        """A new sample of every process still there (at most every ``min_interval_s``)."""
+        if time.monotonic() - self._last_sample < min_interval_s:
+            return
+        self._last_sample = time.monotonic()
+        for name, pid in self._all_pids().items():
+            value = read_proc(pid)
+            if value is not None:
+                self.last[name] = value
+
+    def close_window(self) -> None:
+        """The measured frames of this round are done: add the window's CPU time and wall time."""
+        if self._window_start is None:
+            return
+        self.sample()
+        for name, start in self._window_start.items():
+            end = self.last.get(name)
+            if start is not None and end is not None:
+                self._measured_cpu[name] = self._measured_cpu.get(name, 0.0) + end.cpu_s - start.cpu_s
+                self._measured_wall[name] = self._measured_wall.get(name, 0.0) + end.wall_s - start.wall_s
+        self._window_start = None
+
+    def usage(self) -> list[NodeUsage]:
+        """Per process: CPU over the measured frames, total CPU and peak memory."""
+        result = []
+        for name, pid in self._all_pids().items():
+            last = self.last.get(name)
+            if last is None:
+                continue
+            cpu = self._measured_cpu.get(name, float("nan"))
+            wall = self._measured_wall.get(name, float("nan"))
+            result.append(NodeUsage(
+                name, pid,
+                cpu_s_total=self._retired_cpu.get(name, 0.0) + last.cpu_s,
+                cpu_s_measured=cpu,
+                cpu_percent=100.0 * cpu / wall if wall > 0 else float("nan"),
+                peak_mb=max(self._retired_hwm.get(name, 0), last.hwm_kb) / 1024.0,
+                rss_mb=last.rss_kb / 1024.0,
+            ))
+        return result
+
+
+class GraphSession:
+    """The graph as separate processes, started once; the camera replays the bag once per round.
+
+    ``start`` brings up detector, tracker, fuser and gps_publisher and waits until they and the watcher are
+    connected; ``run_round`` starts the camera at rate 0 for ``warmup + frames`` frames and waits until they
+    came out of the fuser; ``stop`` stops every node (SIGINT).
+    """
+
+    def __init__(self, bag: Path, params_files: list[Path], frames_in_bag: int, warmup: int, domain_id: int,
+                 log_dir: Path, frame_timeout_s: float):
+        self.bag = bag
+        self.frames_in_bag = frames_in_bag
+        self.warmup = warmup
+        self.domain_id = domain_id
+        self.log_dir = log_dir
+        self.frame_timeout_s = frame_timeout_s
+        self.nodes = {node.name: node for node in GRAPH_NODES}
+        self.runner = GraphRunner(params_files, log_dir=log_dir)
+        self.watcher: BenchWatcher | None = None
+        self.monitor = ProcMonitor()
+        self.requested = 0
+        self.statuses: dict[str, int] = {}
+
+    def start(self) -> None:
+        """Start the nodes but the camera, consumers first, and wait until everything is connected."""
+        self.watcher = BenchWatcher(self.domain_id)
+        for name in ("gps_publisher", "fuser", "tracker", "detector"):
+            started = self.runner.start(self.nodes[name])
+            self.monitor.add(name, node_pid(started.process.pid, self.nodes[name].executable))
+        log(f"started {', '.join(self.monitor.pids)}; waiting for the graph to connect (ROS_DOMAIN_ID "
+            f"{self.domain_id}, logs in {self.log_dir})")
+        deadline = time.monotonic() + CONNECT_TIMEOUT_S
+        while not self.watcher.connected():
+            self.watcher.spin(0.1)
+            self._raise_if_failed()
+            if time.monotonic() > deadline:
+                raise GraphError(f"the graph did not connect within {CONNECT_TIMEOUT_S:.0f} s; node logs in "
+                                 f"{self.log_dir}")
+
+    def run_round(self, frames: int) -> int:
+        """Replay ``warmup + frames`` frames as fast as the graph consumes them; frames out of the fuser."""
+        watcher, monitor = self.watcher, self.monitor
+        total = self.warmup + frames
+        self.requested += frames
+        images_before, tracks_before = watcher.log.count(IMAGE_TOPIC), watcher.log.count(TRACKS_TOPIC)
+        previous = self.runner.running.get("camera")
+        if previous is not None and previous.log_file is not None:
+            previous.log_file.close()
+        camera = self.runner.start(self.nodes["camera"], {
+            "source": str(self.bag),
+            "rate": 0.0,
+            "loop": total > self.frames_in_bag,
+            "loop_restamp": True,
+            "max_frames": total,
+            "exit_at_end": True,
+            "ack_timeout_s": CAMERA_ACK_TIMEOUT_S,
+            "wait_for_subscribers": 2,  # the detector and the watcher
+        })
+        monitor.add("camera", node_pid(camera.process.pid, self.nodes["camera"].executable))
+        progress = Progress(total)
+        last_count, last_progress = -1, time.monotonic()
+        while True:
+            watcher.spin(0.05)
+            if not monitor.window_open and watcher.log.count(IMAGE_TOPIC) - images_before > self.warmup:
+                monitor.open_window()
+            count = watcher.log.count(TRACKS_TOPIC) - tracks_before
+            if count != last_count:
+                last_count, last_progress = count, time.monotonic()
+                progress.show(count)
+            if count >= total:
+                break
+            monitor.sample(min_interval_s=0.5)
+            self._raise_if_failed()
+            idle = time.monotonic() - last_progress
+            camera_done = camera.process.poll() is not None
+            if (camera_done and idle > END_SETTLE_S) or idle > self.frame_timeout_s:
+                progress.done()
+                log(f"only {count}/{total} frames came out of the fuser "
+                    f"({'the camera finished' if camera_done else f'nothing for {self.frame_timeout_s:.0f} s'})")
+                break
+        monitor.close_window()
+        progress.done()
+        if count == 0:
+            raise GraphError(f"no frame came out of the fuser (logs in {self.log_dir}); the end of the detector's "
+                             "log:\n" + self.runner.log_tail("detector"))
+        # The fixes of the last frames follow their track arrays; the camera exits by itself after the last frame
+        # (stopping it in the middle of its exit would be a needless race).
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and (
+            camera.process.poll() is None or watcher.log.count(FIX_TOPIC) < watcher.log.count(TRACKS_TOPIC)
+        ):
+            watcher.spin(0.1)
+        self._raise_if_failed()
+        return count
+
+    def result(self) -> GraphRun:
+        """What was measured (call before ``stop``)."""
+        self.watcher.spin(1.2)  # one more diagnostics period
+        usage = self.monitor.usage()
+        own = [u for u in usage if u.name == ProcMonitor.OWN]
+        return GraphRun(self.watcher.log, self.warmup, self.requested,
+                        [u for u in usage if u.name != ProcMonitor.OWN], dict(self.watcher.diagnostics),
+                        self.watcher.fixes_with_position, self.statuses, own[0] if own else None)
+
+    def stop(self) -> dict[str, int]:
+        """Stop every node (SIGINT, then kill after a time-out) and the watcher; exit statuses."""
+        try:
+            self.statuses.update(self.runner.stop())
+        finally:
+            if self.watcher is not None:
+                self.watcher.close()
+        return self.statuses
+
+    def _raise_if_failed(self) -> None:
+        failed = self.runner.failed()
+        if failed:
+            name = failed[0]
+            status = self.runner.running[name].process.returncode
+            raise GraphError(f"node {name} exited with status {status}; the end of its log:\n"
+                             f"{self.runner.log_tail(name)}")
+
+
+class Progress:
+    """Frames through the graph on stderr: one updating line on a terminal, a line every 10 s otherwise."""
+
+    def __init__(self, total: int):
+        self.total = total
+        self.tty = sys.stderr.isatty()
+        self._last = 0.0
+        self._open = False
+
+    def show(self, count: int) -> None:
+        """Report ``count`` frames out of the fuser."""
+        text = f"[bench] graph: {count}/{self.total} frames out of the fuser"
+        if self.tty:
+            print(f"\r{text}", end="", file=sys.stderr, flush=True)
+            self._open = True
+        elif time.monotonic() - self._last > 10.0 or count >= self.total:
+            self._last = time.monotonic()
+            print(text, file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        """End the updating line."""
+        if self._open:
+            print(file=sys.stderr)
+            self._open = False
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------------------------------
+def machine_info() -> dict[str, object]:
+    """Cores, CPU model, load average, versions."""
+    import onnxruntime
+
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cores": os.cpu_count(),
+        "cpu_model": model or platform.processor(),
+        "load_average_before": list(os.getloadavg()),
+        "onnxruntime_version": onnxruntime.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def _fmt(value: float, digits: int = 1) -> str:
+    return f"{value:.{digits}f}" if isinstance(value, (int, float)) and math.isfinite(value) else "-"
+
+
+def format_table(result: dict) -> str:
+    """The figures as a plain-text table."""
+    core, graph, machine = result["detector_core"], result["graph"], result["machine"]
+    lines = [
+        f"vessel bench: video {result['video']}, {graph['frames_measured']}/{result['frames']} frames measured "
+        f"(+{result['warmup']} warm-up), detector mode {machine['detector_mode']} "
+        f"({machine['windows_per_frame']} network runs/frame), onnxruntime {machine['onnxruntime_version']} "
+        f"{machine['onnxruntime_threads']} threads",
+        f"machine: {machine['cores']} cores ({machine['cpu_model']}), load average before "
+        + " ".join(f"{v:.2f}" for v in machine["load_average_before"])
+        + ", after " + " ".join(f"{v:.2f}" for v in machine["load_average_after"]),
+        "",
+        f"{'':40s}{'frames/s':>10s}{'ms p50':>10s}{'ms p95':>10s}",
+        f"{'detector core (decode + detect)':40s}{_fmt(result['detector_core_fps'], 2):>10s}"
+        f"{_fmt(core['total_ms']['p50']):>10s}{_fmt(core['total_ms']['p95']):>10s}",
+        f"{'  of which decode':40s}{'':>10s}{_fmt(core['decode_ms']['p50']):>10s}{_fmt(core['decode_ms']['p95']):>10s}",
+        f"{'graph end to end (frame interval)':40s}{_fmt(result['graph_fps'], 2):>10s}"
+        f"{_fmt(graph['graph_interval_ms']['p50']):>10s}{_fmt(graph['graph_interval_ms']['p95']):>10s}",
+        f"{'ratio graph / core':40s}{_fmt(result['ratio_graph_to_core'], 2):>10s}   target >= {RATIO_TARGET:.2f}: "
+        + ("met" if result["ratio_graph_to_core"] >= RATIO_TARGET else "NOT met"),
+        f"{'  per round: core':40s}" + " ".join(_fmt(v, 2) for v in core["fps_per_round"]),
+        f"{'  per round: graph':40s}" + " ".join(_fmt(v, 2) for v in graph["graph_fps_per_round"]),
+        f"{'latency image -> /vessel/fix':40s}{'':>10s}{_fmt(result['latency_ms_p50']):>10s}"
+        f"{_fmt(result['latency_ms_p95']):>10s}",
+        f"{'  (publication times)':40s}{'':>10s}{_fmt(graph['latency_fix_published_ms']['p50']):>10s}"
+        f"{_fmt(graph['latency_fix_published_ms']['p95']):>10s}",
+        f"{'latency image -> /vessel/tracks':40s}{'':>10s}{_fmt(graph['latency_tracks_ms']['p50']):>10s}"
+        f"{_fmt(graph['latency_tracks_ms']['p95']):>10s}",
+        "",
+        "per stage, publication to publication (ms):",
+    ]
+    for name, stats in graph["stages_ms"].items():
+        lines.append(f"{'  ' + name:40s}{'':>10s}{_fmt(stats['p50']):>10s}{_fmt(stats['p95']):>10s}")
+    turnaround = graph["camera_turnaround_ms"]
+    lines.append(f"{'  camera: detections -> next image':40s}{'':>10s}{_fmt(turnaround['p50']):>10s}"
+                 f"{_fmt(turnaround['p95']):>10s}")
+    lines += ["", "CPU over the measured frames (100 % = one core) and peak memory (VmHWM):",
+              f"{'process':18s}{'pid':>8s}{'CPU s total':>13s}{'CPU s meas.':>13s}{'CPU %':>8s}"
+              f"{'CPU ms/frame':>14s}{'peak MB':>9s}"]
+    lines.append(f"{'detector core':18s}{'':>8s}{'':>13s}{'':>13s}{_fmt(core['cpu_percent'], 0):>8s}"
+                 f"{_fmt(core['cpu_ms_per_frame'], 0):>14s}{'':>9s}")
+    for name, usage in result["nodes"].items():
+        lines.append(f"{name:18s}{usage['pid']:>8d}{_fmt(usage['cpu_s_total'], 2):>13s}"
+                     f"{_fmt(usage['cpu_s_measured'], 2):>13s}{_fmt(usage['cpu_percent'], 0):>8s}"
+                     f"{_fmt(usage['cpu_ms_per_frame'], 0):>14s}{_fmt(usage['peak_mb'], 0):>9s}")
+    if result.get("warnings"):
+        lines += [""] + [f"warning: {w}" for w in result["warnings"]]
+    return "\n".join(lines)
+
+
+def _json_safe(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def write_json(path: Path, result: dict) -> None:
+    """Write the result atomically (temp file + rename); non-finite numbers become null."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(handle, "w") as stream:
+        json.dump(_json_safe(result), stream, indent=2)
+        stream.write("\n")
+    os.replace(temp, path)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Command line
+# --------------------------------------------------------------------------------------------------------------
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command line of ``./vessel bench``."""
+    parser = argparse.ArgumentParser(prog="./vessel bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=None, help="dataset folder to build the bag from if it is "
+                        "missing (default: $VESSEL_DATA or ../shared/aitas)")
+    parser.add_argument("--videos", default=str(DEFAULT_VIDEO), help=f"the video to replay (one; default "
+                        f"{DEFAULT_VIDEO}); it is looped for more frames than it holds")
+    parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="frames measured, after the warm-up "
+                        f"(default {DEFAULT_FRAMES})")
+    parser.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="frames run first and not measured, in "
+                        f"the core and in the graph (default {DEFAULT_WARMUP})")
+    parser.add_argument("--rounds", type=int, default=DEFAULT_ROUNDS, help="alternate the core and the graph "
+                        f"this many times, the frames shared out between the rounds, so that a change of the "
+                        f"machine's load weighs on both alike (default {DEFAULT_ROUNDS})")
+    parser.add_argument("--out", type=Path, default=None, help="also write the figures to this JSON file")
+    parser.add_argument("--params", type=Path, default=None, help="graph parameter file (default config/aitas.yaml)")
+    parser.add_argument("--calib", type=Path, default=None,
+                        help="calibration parameter file (default config/aitas_camera.yaml)")
+    parser.add_argument("--bags", type=Path, default=None, help="folder of the video bags (default bags/; built "
+                        "there if missing)")
+    parser.add_argument("--log-dir", type=Path, default=None, help="node logs go to DIR/<node>.log (default: a "
+                        "temporary folder, named in error messages)")
+    parser.add_argument("--frame-timeout", type=float, default=60.0, help="give up when no frame comes out of the "
+                        "graph for this many seconds (default 60)")
+    args = parser.parse_args(argv)
+    if args.frames < 1:
+        parser.error("--frames must be at least 1")
+    if args.rounds < 1:
+        parser.error("--rounds must be at least 1")
+    if args.warmup < 0:
+        parser.error("--warmup must be >= 0")
+    return args
+
+
+def split_frames(frames: int, rounds: int) -> list[int]:
+    """``frames`` shared out over ``rounds`` (at most one per frame) as evenly as possible."""
+    rounds = max(1, min(rounds, frames))
+    return [frames // rounds + (1 if index < frames % rounds else 0) for index in range(rounds)]
+
+
+def _domain_id() -> int:
+    """``ROS_DOMAIN_ID`` if set, else a random private one (other graphs on this machine stay apart)."""
+    value = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if value:
+        try:
+            return int(value)
+        except ValueError:
+            raise DataError(f"ROS_DOMAIN_ID={value!r} is not a number: unset it or give 0-101") from None
+    domain = random.randint(1, 100)
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    return domain
+
+
+def run(args: argparse.Namespace) -> dict:
+    """The whole benchmark; the result dictionary (also what ``--out`` writes)."""
+    from vessel_calib.dataset import parse_videos
+
+    videos = parse_videos(args.videos)
+    if len(videos) != 1:
+        raise DataError(f"--videos {args.videos}: the benchmark replays one video (looped for more frames); "
+                        "give one, e.g. --videos 13")
+    video = videos[0]
+    params_files = [args.params or default_params_file(), args.calib or default_calibration_file()]
+    for path in params_files:
+        if not path.is_file():
+            raise DataError(f"parameter file {path} not found: pass an existing file with --params/--calib")
+    machine = machine_info()
+    bag = prepare_bag(video, args.data, args.bags)
+    try:
+        import rclpy  # noqa: F401
+
+        import vessel_msgs.msg  # noqa: F401
+    except ImportError as error:
+        raise VesselError(f"the ROS 2 workspace is not sourced ({error}): run ./vessel bench") from None
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    domain_id = _domain_id()
+    bag_frames = read_bag_jpegs(bag)
+    rounds = split_frames(args.frames, args.rounds)
+    # Every round replays the bag from its start: the same frames for the core and the graph, in every round.
+    one_round = looped(bag_frames, args.warmup + max(rounds))
+    log(f"video {video}: {len(bag_frames)} frames in {bag}; {len(rounds)} round(s) of {args.warmup} warm-up + "
+        f"{'/'.join(map(str, rounds))} measured frames" + (" (looped)" if len(one_round) > len(bag_frames) else ""))
+
+    parameters = node_parameters(params_files, "detector")
+    core = build_core_detector(parameters)
+    log(f"detector core: {core.model_path}, mode {core.mode}, {core.threads} onnxruntime threads")
+    run_core(core, one_round[: args.warmup])
+    windows = core.windows_per_frame()
+
+    log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="vessel_bench_"))
+    session = GraphSession(bag, params_files, len(bag_frames), args.warmup, domain_id, log_dir, args.frame_timeout)
+    core_rounds: list[CoreTimes] = []
+    try:
+        session.start()
+        for index, frames in enumerate(rounds, start=1):
+            core_rounds.append(run_core(core, one_round[args.warmup : args.warmup + frames]))
+            log(f"round {index}/{len(rounds)}: detector core {core_rounds[-1].fps():.2f} frames/s over {frames} "
+                "frames; now the graph")
+            session.run_round(frames)
+        graph_run = session.result()
+    finally:
+        session.stop()
+    times = CoreTimes()
+    for part in core_rounds:
+        times = times + part
+
+    graph = graph_figures(graph_run)
+    machine.update({
+        "load_average_after": list(os.getloadavg()),
+        "onnxruntime_threads": core.threads,
+        "detector_mode": core.mode,
+        "windows_per_frame": windows,
+        "ros_domain_id": domain_id,
+    })
+    core_fps = times.fps()
+    graph_fps = float(graph["graph_fps"])
+    usages = graph_run.usage + ([graph_run.watcher_usage] if graph_run.watcher_usage is not None else [])
+    nodes = {u.name: u.as_dict() for u in usages}
+    for figures in nodes.values():
+        frames_out = graph["frames_measured"]
+        figures["cpu_ms_per_frame"] = 1000.0 * figures["cpu_s_measured"] / frames_out if frames_out else math.nan
+    warnings = []
+    if graph["frames_measured"] < args.frames:
+        warnings.append(f"{args.frames - graph['frames_measured']} of {args.frames} measured frames did not come "
+                        "out of the fuser (see the camera's ack timeouts in diagnostics)")
+    counters = {
+        "camera_ack_timeouts": graph_run.diagnostics.get("camera", {}).get("count.ack_timeouts"),
+        "detector_dropped_frames": graph_run.diagnostics.get("detector", {}).get("count.dropped_frames"),
+    }
+    graph.update({k: int(v) for k, v in counters.items() if v is not None and str(v).isdigit()})
+    if graph.get("camera_ack_timeouts"):
+        warnings.append(f"the camera waited {CAMERA_ACK_TIMEOUT_S:g} s in vain for detections "
+                        f"{graph['camera_ack_timeouts']} time(s): frames were lost on the way to the detector")
+    bad_exits = {name: status for name, status in graph_run.statuses.items() if status != 0}
+    if bad_exits:
+        warnings.append(f"node(s) exited with a non-zero status on SIGINT: {bad_exits}; logs in {log_dir}")
+    latency = graph.get("latency_fix_ms", summary_ms([]))
+    return {
+        "graph_fps": graph_fps,
+        "detector_core_fps": core_fps,
+        "latency_ms_p50": latency["p50"],
+        "latency_ms_p95": latency["p95"],
+        "ratio_graph_to_core": graph_fps / core_fps if core_fps > 0 else float("nan"),
+        "ratio_target": RATIO_TARGET,
+        "video": video,
+        "frames": args.frames,
+        "warmup": args.warmup,
+        "rounds": len(rounds),
+        "bag": str(bag),
+        "params_files": [str(p) for p in params_files],
+        "detector_core": {
+            "total_ms": summary_ms(times.total_s),
+            "decode_ms": summary_ms(times.decode_s),
+            "detect_ms": summary_ms(times.detect_s),
+            "fps_per_round": [part.fps() for part in core_rounds],
+            "frames": len(times.decode_s),
+            "cpu_ms_per_frame": 1000.0 * sum(times.cpu_s) / max(1, len(times.cpu_s)),
+            "cpu_percent": times.cpu_percent(),
+        },
+        "graph": graph,
+        "nodes": nodes,
+        "node_exit_statuses": graph_run.statuses,
+        "node_diagnostics": graph_run.diagnostics,
+        "machine": machine,
+        "log_dir": str(log_dir),
+        "warnings": warnings,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark; 0 when it ran, 2 on bad input (missing bag, model, data), 1 when the graph failed."""
+    args = parse_args(argv)
+    try:
+        result = run(args)
+    except VesselError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except GraphError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # every node was stopped on the way out (run_graph's finally)
+        print("error: interrupted; every node was stopped", file=sys.stderr)
+        return 130
+    print(format_table(result))
+    if args.out is not None:
+        write_json(args.out, result)
+        log(f"figures written to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
