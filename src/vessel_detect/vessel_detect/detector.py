@@ -191,6 +191,9 @@ class OnnxModel:
         options = ort.SessionOptions()
         options.intra_op_num_threads = max(1, int(intra_op_threads))
         options.inter_op_num_threads = 1
+        # Spinning worker threads burn the cores the rest of the graph needs between frames; on the 2-core
+        # development machine turning it off made inference 1.5-2x faster under load (bench report).
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         options.log_severity_level = 3
         try:
             self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
