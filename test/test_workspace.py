@@ -6,6 +6,7 @@ import ast
 import os
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -86,7 +87,10 @@ def _node_arguments(package: str, executable: str, tmp_path: Path) -> list[str]:
 
 @pytest.mark.ros
 @pytest.mark.parametrize(("package", "executable"), [e for e in EXECUTABLES if e not in TOOLS_NOT_NODES])
-def test_node_starts_and_stops_cleanly_on_sigint(package, executable, ros_env, tmp_path):
+def test_node_starts_and_stops_cleanly_on_sigint(package, executable, ros_env, ros_context, tmp_path, wait_until):
+    """Up (visible in the ROS graph, or for the offline calibrate node, printing), a second, then Ctrl-C."""
+    import rclpy
+
     path = INSTALL_DIR / package / "lib" / package / executable
     if not path.is_file():
         pytest.fail(f"{path} is not installed")
@@ -94,23 +98,37 @@ def test_node_starts_and_stops_cleanly_on_sigint(package, executable, ros_env, t
         model = REPO_ROOT.parent / "shared/models/yolox_nano/yolox_nano.onnx"
         if not model.is_file() and not os.environ.get("VESSEL_MODEL"):
             pytest.skip("the detector refuses to start without its model (../shared/models absent)")
-    process = subprocess.Popen(
-        [str(path), *_node_arguments(package, executable, tmp_path)],
-        env=ros_env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        start_new_session=True,
-    )
-    time.sleep(1.0)  # the contract: up for a second, then Ctrl-C
-    still_running = process.poll() is None
-    if still_running:
-        process.send_signal(signal.SIGINT)
+    is_ros_node = executable != "calibrate"
+    node_name = f"smoke_{executable}"
+    args = _node_arguments(package, executable, tmp_path)
+    if is_ros_node:
+        args = [*args, "-r", f"__node:={node_name}"]
+    process = subprocess.Popen([str(path), *args], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                               text=True, start_new_session=True)
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
+    reader.start()
+    observer = rclpy.create_node("smoke_observer", context=ros_context)
     try:
-        output, _ = process.communicate(timeout=20)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        output, _ = process.communicate()
-        pytest.fail(f"{package}/{executable} did not stop within 20 s of SIGINT:\n{output}")
-    assert "Traceback" not in output, output
-    assert process.returncode == 0, f"exit {process.returncode}:\n{output}"
+        if is_ros_node:
+            up = wait_until(lambda: node_name in observer.get_node_names() or process.poll() is not None, 60,
+                            spin=lambda: time.sleep(0.1))
+        else:
+            up = wait_until(lambda: output or process.poll() is not None, 60)
+        assert up, f"{package}/{executable} did not come up within 60 s:\n{''.join(output)}"
+        assert process.poll() is None or process.returncode == 0, "".join(output)
+        time.sleep(1.0)  # the contract: up for a second, then Ctrl-C
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+            pytest.fail(f"{package}/{executable} did not stop within 20 s of SIGINT:\n{''.join(output)}")
+    finally:
+        observer.destroy_node()
+    reader.join(timeout=5)
+    text = "".join(output)
+    assert "Traceback" not in text, text
+    assert process.returncode == 0, f"exit {process.returncode}:\n{text}"

@@ -87,6 +87,12 @@ def test_vessel_msgs_round_trip(tmp_path):
         ),
         screen_velocity=types["vessel_msgs/msg/Point2D"](x=1.0, y=0.0),
         screen_covariance=np.array([4.0, 0.0, 0.0, 4.0]),
+        detection_bbox=types["vessel_msgs/msg/BoundingBox2D"](
+            center=types["vessel_msgs/msg/Pose2D"](position=types["vessel_msgs/msg/Point2D"](x=641.0, y=421.0),
+                                                   theta=0.0),
+            size_x=42.0,
+            size_y=19.0,
+        ),
         has_world=True,
         position=types["geometry_msgs/msg/Point"](x=150.0, y=40.0, z=0.0),
         velocity=types["geometry_msgs/msg/Vector3"](x=0.0, y=2.5, z=0.0),
@@ -107,6 +113,7 @@ def test_vessel_msgs_round_trip(tmp_path):
     got = message.tracks[0]
     assert (got.id, got.is_target, got.detection_count, got.latitude) == ("7", True, 12, 32.7033)
     assert got.bbox.center.position.y == 420.0
+    assert (got.detection_bbox.center.position.x, got.detection_bbox.size_y) == (641.0, 19.0)
     np.testing.assert_array_equal(got.position_covariance, [25.0, 0.0, 0.0, 25.0])
 
 
