@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.params import atomic_write_text
 
 #: The paper's figure: 5.55 m of error per 100 m of distance.
 PAPER_SLOPE = 0.0555
@@ -150,9 +151,6 @@ def update_params_file(path: Path, node: str, block: str, values: dict) -> None:
 
     Creates the file if needed; written atomically (temp file + rename).
     """
-    import os
-    import tempfile
-
     import yaml
 
     path = Path(path)
@@ -171,15 +169,7 @@ def update_params_file(path: Path, node: str, block: str, values: dict) -> None:
     if not isinstance(params, dict):
         raise DataError(f"{path}: '{node}.ros__parameters' is not a mapping")
     params[block] = values
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w") as out:
-            yaml.safe_dump(document, out, sort_keys=False, default_flow_style=None)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, yaml.safe_dump(document, sort_keys=False, default_flow_style=None))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -38,6 +38,7 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.params import atomic_write_text
 
 PAPER_M_PER_100M = 5.55
 PREDICTION_COLUMNS = ("video", "t_utc_s", "lat", "lon")
@@ -265,15 +266,7 @@ def format_table(summary: dict) -> str:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w") as out:
-            out.write(text)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, text)
 
 
 def write_scores_csv(path: Path, scored: ScoredPredictions) -> None:

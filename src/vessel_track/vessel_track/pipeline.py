@@ -30,9 +30,7 @@ import argparse
 import csv
 import dataclasses
 import math
-import os
 import sys
-import tempfile
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +39,7 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.params import atomic_write_text
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
 from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
 from vessel_track.selection import Trajectory, select_target
@@ -443,15 +442,7 @@ def _seconds_of_day(stamp: float) -> float:
 
 
 def _atomic_lines(path: Path, lines: list[str]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w") as out:
-            out.write("\n".join(lines) + "\n")
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def write_predictions_csv(path: Path, results: list[VideoResult]) -> None:
