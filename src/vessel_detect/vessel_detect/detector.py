@@ -392,6 +392,8 @@ class VesselDetector:
         self.class_indices = np.array([model.class_names.index(n) for n in self.config.classes], dtype=np.int64)
         self.mask = ExclusionMask(list(self.config.exclusion_polygons), self.reference_wh)
         self._plans: dict[tuple[int, int], list[tuple[Window, bool]]] = {}
+        self.appearance = None  # an appearance_model.AppearanceModel rescoring the boxes (set by build_detector)
+        self.appearance_min_probability = 0.0
         self.last_window_count = 0
 
     @property
@@ -480,6 +482,10 @@ class VesselDetector:
             merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold)
         detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names)
         detections = self._filter(detections, (width, height))
+        if self.appearance is not None:
+            from vessel_detect.appearance_model import rescore_detections
+
+            detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability)
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 

@@ -82,6 +82,11 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "camera's mooring post); [''] for none.", read_only=True),
     ParamSpec("mask_max_inside", 0.5, "A detection whose box lies more than this share inside a mask is "
               "dropped.", float_range=(0.0, 1.0)),
+    ParamSpec("appearance_model", "", "Appearance model of the vessel of interest (.npz from `python -m "
+              "vessel_track.appearance fit`; relative paths from the working directory, then the repository): "
+              "scores become score x probability. '' : off.", read_only=True),
+    ParamSpec("appearance_min_probability", 0.3, "With appearance_model: boxes whose probability of being "
+              "the vessel of interest is below this are dropped.", float_range=(0.0, 1.0), read_only=True),
 )
 
 NODE_PARAMS: tuple[ParamSpec, ...] = (
@@ -207,7 +212,17 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
     else:
         reference = tuple(int(v) for v in camera_model.image_size)
         horizon = horizon_band_top(camera_model)
-    return VesselDetector(model or open_model(values), config, horizon, reference)
+    detector = VesselDetector(model or open_model(values), config, horizon, reference)
+    if values.get("appearance_model"):
+        from vessel_calib.dataset import repo_root
+        from vessel_detect.appearance_model import AppearanceModel
+
+        path = Path(values["appearance_model"]).expanduser()
+        if not path.is_absolute() and not path.is_file():
+            path = repo_root() / path
+        detector.appearance = AppearanceModel.load(path)
+        detector.appearance_min_probability = float(values.get("appearance_min_probability", 0.3))
+    return detector
 
 
 def load_params_file(path: str | Path | None, node_name: str = NODE_NAME) -> tuple[dict[str, Any], Any]:
