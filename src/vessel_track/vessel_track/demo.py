@@ -236,8 +236,11 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
             if watcher.tracks_received != last_count:
                 last_count = watcher.tracks_received
                 last_progress = time.monotonic()
-                print(f"\r[demo] video {video}: {last_count}/{expected} frames through the graph",
-                      end="", file=sys.stderr, flush=True)
+                if sys.stderr.isatty():
+                    print(f"\r[demo] video {video}: {last_count}/{expected} frames through the graph",
+                          end="", file=sys.stderr, flush=True)
+                elif last_count % 10 == 0:  # a log file gets a line every ten frames
+                    log(f"video {video}: {last_count}/{expected} frames through the graph")
             failed = runner.failed()
             if failed:
                 raise VesselError(f"node(s) {failed} failed during video {video}:\n{runner.log_tail(failed[0])}")
@@ -248,7 +251,8 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
                 log(f"video {video}: stopping with {watcher.tracks_received}/{expected} frames through the graph "
                     f"({'the source finished' if source_done else 'no progress'}; see {log_dir})")
                 break
-        print(file=sys.stderr)
+        if sys.stderr.isatty():
+            print(file=sys.stderr)
         watcher.spin(1.0)  # let the GPS publisher and the recorder take the last messages
         frames_out = watcher.tracks_received
     finally:
