@@ -9,6 +9,7 @@ that stop the node at start with one clear line.
 from __future__ import annotations
 
 import math
+import signal
 import sys
 import threading
 import time
@@ -217,6 +218,16 @@ class NodeHealth:
         self._publisher.publish(array)
 
 
+def _ignore_late_sigint() -> None:
+    """Ignore SIGINT once the exit status is decided.
+
+    A supervisor stopping the graph while this node already leaves (e.g. the camera at the end of a bag) must not
+    turn a clean exit into death by signal.
+    """
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_node(
     node_factory: Callable[[], Node],
     args: Sequence[str] | None = None,
@@ -249,6 +260,7 @@ def run_node(
     except (KeyboardInterrupt, ExternalShutdownException):
         status = 0
     finally:
+        _ignore_late_sigint()
         if node is not None:
             try:
                 close = getattr(node, "close", None)
@@ -259,6 +271,7 @@ def run_node(
                 print(f"warning: while shutting down: {error}", file=sys.stderr)
         if rclpy.ok():
             rclpy.try_shutdown()
+        _ignore_late_sigint()
     return status
 
 

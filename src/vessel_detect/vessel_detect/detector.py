@@ -394,6 +394,8 @@ class VesselDetector:
         self._plans: dict[tuple[int, int], list[tuple[Window, bool]]] = {}
         self.appearance = None  # an appearance_model.AppearanceModel rescoring the boxes (set by build_detector)
         self.appearance_min_probability = 0.0
+        self.appearance_camera = None  # the CameraModel its geometry features need (set by build_detector)
+        self.appearance_combine = "replace"
         self.last_window_count = 0
 
     @property
@@ -485,7 +487,9 @@ class VesselDetector:
         if self.appearance is not None:
             from vessel_detect.appearance_model import rescore_detections
 
-            detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability)
+            calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
+            detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,
+                                            self.appearance_camera, calibration_scale, self.appearance_combine)
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vessel_calib.errors import VesselError
+from vessel_calib.errors import ModelError, VesselError
 from vessel_detect.detector import (
     CHALLENGE_HORIZON_Y,
     DetectorConfig,
@@ -84,9 +84,11 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "dropped.", float_range=(0.0, 1.0)),
     ParamSpec("appearance_model", "", "Appearance model of the vessel of interest (.npz from `python -m "
               "vessel_track.appearance fit`; relative paths from the working directory, then the repository): "
-              "scores become score x probability. '' : off.", read_only=True),
-    ParamSpec("appearance_min_probability", 0.3, "With appearance_model: boxes whose probability of being "
+              "scores become its probability of the vessel of interest. '' : off.", read_only=True),
+    ParamSpec("appearance_min_probability", 0.5, "With appearance_model: boxes whose probability of being "
               "the vessel of interest is below this are dropped.", float_range=(0.0, 1.0), read_only=True),
+    ParamSpec("appearance_combine", "replace", "With appearance_model: replace (the published score is the "
+              "probability) or product (detector score x probability).", read_only=True),
 )
 
 NODE_PARAMS: tuple[ParamSpec, ...] = (
@@ -221,7 +223,16 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
         if not path.is_absolute() and not path.is_file():
             path = repo_root() / path
         detector.appearance = AppearanceModel.load(path)
-        detector.appearance_min_probability = float(values.get("appearance_min_probability", 0.3))
+        if detector.appearance.needs_camera and camera_model is None:
+            raise ModelError(f"appearance model {path} uses box geometry ({detector.appearance.feature_set}) and "
+                             "needs the calibration: load it with --params-file config/aitas_camera.yaml (the "
+                             "camera.* parameters), or set appearance_model to ''")
+        detector.appearance_camera = camera_model
+        detector.appearance_min_probability = float(values.get("appearance_min_probability", 0.5))
+        combine = str(values.get("appearance_combine", "replace"))
+        if combine not in ("replace", "product"):
+            raise VesselError(f"detector parameter 'appearance_combine' must be replace or product, got {combine!r}")
+        detector.appearance_combine = combine
     return detector
 
 

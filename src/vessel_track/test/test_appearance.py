@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from vessel_calib.errors import DataError, ModelError
+from vessel_detect import appearance_model as am
 from vessel_track import appearance as ap
 from vessel_track.pipeline import DetectionFrame
 
@@ -20,13 +21,13 @@ def _image_with_boats(rng):
 def test_crop_features_shape_and_normalisation():
     rng = np.random.default_rng(0)
     image = _image_with_boats(rng)
-    f = ap.crop_features(image, [[80, 95, 120, 110], [-50, -50, 5, 5], [0, 0, np.nan, 3]])
-    assert f.shape == (3, ap.FEATURE_SIZE)
+    f = am.crop_features(image, [[80, 95, 120, 110], [-50, -50, 5, 5], [0, 0, np.nan, 3]])
+    assert f.shape == (3, am.FEATURE_SIZE)
     np.testing.assert_allclose(f[:2, :32].sum(axis=1), 1.0)   # hue-saturation histogram
     np.testing.assert_allclose(f[:2, 32:40].sum(axis=1), 1.0)  # value histogram
     assert np.all(np.isnan(f[2]))
     with pytest.raises(DataError):
-        ap.crop_features(np.zeros((10, 10), dtype=np.uint8), [[0, 0, 5, 5]])
+        am.crop_features(np.zeros((10, 10), dtype=np.uint8), [[0, 0, 5, 5]])
 
 
 def test_logistic_fit_separates_white_from_red_and_round_trips(tmp_path):
@@ -35,7 +36,7 @@ def test_logistic_fit_separates_white_from_red_and_round_trips(tmp_path):
     for _ in range(30):
         image = _image_with_boats(rng)
         jitter = rng.integers(-3, 4, 4)
-        features.append(ap.crop_features(image, [np.array([80, 95, 120, 110]) + jitter,
+        features.append(am.crop_features(image, [np.array([80, 95, 120, 110]) + jitter,
                                                  np.array([280, 95, 320, 110]) + jitter,
                                                  np.array([400, 150, 440, 165]) + jitter]))
         labels += [1, 0, 0]
@@ -57,41 +58,121 @@ def test_logistic_fit_separates_white_from_red_and_round_trips(tmp_path):
         ap.fit_logistic(np.vstack(features)[:3], np.array(labels)[:3])
 
 
-def test_shipped_model_prefers_the_vessel_of_interest_on_a_validation_frame():
-    """config/appearance_aitas.npz (fitted on 7-12): the labelled boat of a validation frame beats other boxes."""
-    from vessel_calib.dataset import default_data_dir, repo_root
+def _challenge_camera():
+    from vessel_calib.camera_model import CameraModel
 
-    data = default_data_dir()
-    path = repo_root() / "config" / "appearance_aitas.npz"
-    if data is None or not path.is_file():
-        pytest.skip("needs ../shared/aitas and config/appearance_aitas.npz")
+    H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]
+    return CameraModel(H, -4.053e-7, camera_lat=32.70297, camera_lon=-117.234631)
+
+
+def test_geometry_features_say_whether_a_box_has_the_vessels_size_where_it_sits():
+    """A box of the expected size at its depth scores log ratios near 0; a ferry-sized one far above 0."""
+    camera = _challenge_camera()
+    size_model = (4838.3, 6.04, 2844.3, -0.27)
+    xw, yw = 100.0 * np.cos(np.radians(14.0)), 100.0 * np.sin(np.radians(14.0))  # ~100 m ahead
+    xs, ys, ok = camera.world_to_screen(xw, yw)
+    assert ok
+    depth = float(camera.depth_m(xw, yw))
+    w, h = size_model[0] / depth + size_model[1], size_model[2] / depth + size_model[3]
+    right = [xs - w / 2, ys - h / 2, xs + w / 2, ys + h / 2]
+    ferry = [xs - 4 * w, ys - 3 * h, xs + 4 * w, ys + 3 * h]
+    sky = [600, 100, 640, 120]                                   # above the horizon: no depth, far
+    g = am.geometry_features(camera, size_model, [right, ferry, sky], [0.5, 0.5, 0.5])
+    assert g.shape == (3, am.GEOMETRY_SIZE) and np.all(np.isfinite(g))
+    assert abs(g[0, 0]) < 0.05 and abs(g[0, 1]) < 0.05          # width, height as expected
+    assert g[1, 0] > 1.5 and g[1, 1] > 1.0                       # far too large for its position
+    assert g[2, 6] == 0.0 and g[0, 6] == 1.0                     # position valid flag
+    assert g[2, 5] == pytest.approx(np.log(am.FAR_DEPTH_M))
+    c = am.context_features(_image_with_boats(np.random.default_rng(0)), [[80, 95, 120, 110], [0, 0, np.nan, 3]])
+    assert c.shape == (2, am.CONTEXT_SIZE) and c[0, 0] > 0.9 and np.all(np.isnan(c[1]))
+
+
+def test_geometry_model_round_trips_and_needs_the_calibration(tmp_path):
+    camera = _challenge_camera()
+    rng = np.random.default_rng(3)
+    size = am.FEATURE_SETS["colour_geometry_context"]
+    features = rng.normal(size=(60, size))
+    labels = (features[:, am.COLOUR_SIZE] > 0).astype(float)     # the width-ratio feature decides
+    model = ap.fit_logistic(features, labels, l2=1.0, feature_set="colour_geometry_context",
+                            size_model=(4838.3, 6.04, 2844.3, -0.27))
+    assert model.needs_camera
+    path = tmp_path / "v2.npz"
+    model.save(path)
+    loaded = am.AppearanceModel.load(path)
+    assert loaded.feature_set == "colour_geometry_context" and loaded.size_model == model.size_model
+    np.testing.assert_allclose(loaded.probability_of_features(features), model.probability_of_features(features))
+    image = _image_with_boats(rng)
+    p = loaded.probability(image, [[80, 95, 120, 110]], [0.4], camera)
+    assert p.shape == (1,) and 0 <= p[0] <= 1
+    with pytest.raises(ModelError, match="calibration"):
+        loaded.probability(image, [[80, 95, 120, 110]], [0.4], None)
+    with pytest.raises(ModelError, match="size_model"):
+        am.AppearanceModel(model.mean, model.scale, model.weights, model.bias, "", "colour_geometry_context", None)
+    with pytest.raises(ModelError, match="feature set"):
+        am.AppearanceModel(model.mean, model.scale, model.weights, model.bias, "", "colour")
+
+
+def test_detector_combines_the_probability_as_configured():
+    """Replace publishes the probability, product the score x probability; boxes below the minimum dropped."""
+    from vessel_detect.detector import Detections
+
+    class Fixed:
+        def probability(self, image, boxes, scores=None, camera=None, calibration_scale=(1.0, 1.0)):
+            return np.array([0.9, 0.2, 0.6])
+
+    detections = Detections(np.array([[0, 0, 5, 5], [1, 1, 6, 6], [2, 2, 8, 8]], float), np.array([0.5, 0.8, 0.1]),
+                            np.array([8, 8, 8]), ["boat"] * 9)
+    image = np.zeros((10, 10, 3), np.uint8)
+    out = am.rescore_detections(detections, image, Fixed(), 0.5, combine="replace")
+    np.testing.assert_allclose(out.scores, [0.9, 0.6])
+    out = am.rescore_detections(detections, image, Fixed(), 0.5, combine="product")
+    np.testing.assert_allclose(out.scores, [0.45, 0.06])
+    with pytest.raises(ModelError):
+        am.rescore_detections(detections, image, Fixed(), 0.5, combine="sum")
+
+
+@pytest.mark.data
+def test_shipped_cue_ranks_the_vessel_first_among_the_detectors_boxes(data_dir, model_path):
+    """Metric regression: config/aitas.yaml's detector with config/appearance_aitas.npz (fitted on 7-12).
+
+    On every 4th frame of validation videos 13-16 where the vessel's GPS projects into the image and a detection
+    lies within 20 px of it, the most probable box is that detection. Measured on all such frames of 13-17:
+    89 % (the detector's own score: 3 %).
+    """
     import cv2
 
-    from vessel_calib.dataset import Dataset
+    from vessel_calib.dataset import Dataset, repo_root
+    from vessel_calib.params import load_camera_yaml
+    from vessel_detect.detector_params import build_detector, load_params_file
 
-    dataset = Dataset(data)
-    model = ap.AppearanceModel.load(path)
-    assert path.stat().st_size < 200_000
-    frames = {(f.video, f.frame): f.path for f in dataset.frames([13, 14, 15, 16])}
-    wins, total = 0, 0
-    for label in dataset.labels([13, 14, 15, 16])[::4]:
-        if (label.video, label.frame) not in frames:
+    values, _ = load_params_file(repo_root() / "config" / "aitas.yaml")
+    values.update(model_path=str(model_path), model_sha256="", appearance_min_probability=0.0)
+    camera = load_camera_yaml(repo_root() / "config" / "aitas_camera.yaml")
+    detector = build_detector(values, camera)
+    assert detector.appearance is not None and detector.appearance.needs_camera
+    dataset = Dataset(data_dir)
+    track = dataset.gps_track()
+    first, counted = 0, 0
+    for frame in dataset.frames([13, 14, 15, 16])[::4]:
+        lat, lon, ok = track.interpolate(frame.stamp, max_gap_s=3.0)
+        if not ok:
             continue
-        image = cv2.imread(str(frames[(label.video, label.frame)]))
-        target = [label.x1, label.y1, label.x2, label.y2]
-        w, h = label.x2 - label.x1, label.y2 - label.y1
-        # Boxes of the same size elsewhere along the horizon band: water, shore, other boats.
-        others = [[x, label.y1, x + w, label.y1 + h] for x in range(20, 1260 - int(w), 160)
-                  if abs(x - label.x1) > 2 * w]
-        p = model.probability(image, [target] + others)
-        wins += p[0] > np.median(p[1:])
-        total += 1
-    assert total >= 10 and wins / total > 0.8, (wins, total)
+        xs, ys, in_front = camera.gps_to_screen(lat, lon)
+        if not (in_front and camera.in_image(xs, ys)):
+            continue
+        result = detector.detect(cv2.imread(str(frame.path)))
+        centres = (result.boxes_xyxy[:, :2] + result.boxes_xyxy[:, 2:]) / 2.0
+        distance = np.hypot(centres[:, 0] - xs, centres[:, 1] - ys)
+        if not np.any(distance < 20):
+            continue
+        counted += 1
+        first += distance[int(np.argmax(result.scores))] < 20
+    assert counted >= 15 and first / counted >= 0.75, (first, counted)
 
 
 def test_rescore_multiplies_and_drops_below_minimum(monkeypatch):
     class Fixed:
-        def probability(self, image, boxes):
+        def probability(self, image, boxes, scores=None, camera=None):
             return np.array([0.9, 0.2])
 
     class Frames:

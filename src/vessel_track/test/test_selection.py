@@ -25,6 +25,22 @@ def test_score_is_the_papers_formula():
     assert path_length_m([[0, 0], [3, 4], [np.nan, 1], [3, 10]]) == pytest.approx(11.0)
 
 
+def test_evidence_score_accumulates_log_odds_and_prefers_the_steady_track():
+    """Evidence: many frames that look like the vessel beat a few that look very much like it."""
+    steady = np.full(20, 0.8)                      # log-odds 1.386 each
+    brief = np.array([0.999, 0.999, 0.3, 0.3])     # clipped at 4, then -0.847 each
+    evidence = SelectionConfig(confidence_score="evidence", evidence_clip=4.0)
+    assert trajectory_score(steady, 500.0, mode="evidence") == pytest.approx(20 * math.log(4.0) * math.log(500.0))
+    assert trajectory_score(brief, 500.0, mode="evidence", evidence_clip=4.0) == pytest.approx(
+        (8.0 + 2 * math.log(0.3 / 0.7)) * math.log(500.0))
+    assert trajectory_score(np.full(5, 0.2), 500.0, mode="evidence") < 0   # looks unlike the vessel: negative
+    a = Trajectory("A", np.arange(20) * 4.0, np.column_stack([np.arange(20) * 8.0, np.zeros(20)]), steady)
+    b = Trajectory("B", np.arange(4) * 4.0, np.column_stack([np.arange(4) * 50.0, np.ones(4) * 500]), brief)
+    assert a.score(evidence) > b.score(evidence)
+    # The paper's 80th percentile would prefer the brief one.
+    assert b.score(SelectionConfig(confidence_percentile=80)) > a.score(SelectionConfig(confidence_percentile=80))
+
+
 def _line(tid, t0, t1, start, velocity, conf=0.8, dt=4.0):
     t = np.arange(t0, t1 + 1e-9, dt)
     pos = np.asarray(start, float) + np.outer(t - t0, velocity)
@@ -113,6 +129,10 @@ def test_config_validation():
         SelectionConfig(switch_ratio=0.5)
     with pytest.raises(DataError):
         SelectionConfig(confidence_percentile=120)
+    with pytest.raises(DataError, match="confidence_score"):
+        SelectionConfig(confidence_score="mean")
+    with pytest.raises(DataError, match="evidence_clip"):
+        SelectionConfig(evidence_clip=0.0)
 
 
 def test_handover_to_a_new_track_while_the_target_coasts():

@@ -65,6 +65,9 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.size_consistency": ("Weight the trajectory score by the share of boxes whose size agrees with "
                                    "their position for a vessel of the fitted size.", None),
     "selection.history_length": ("Confidences kept per track for the percentile.", None),
+    "selection.confidence_score": ("How confidences enter the trajectory score: percentile (the paper's) or "
+                                   "evidence (sum of their log-odds; for appearance probabilities).", None),
+    "selection.evidence_clip": ("Bound of one confidence's log-odds in the evidence score.", (1e-3, 100.0)),
     "offline.outlier_threshold_px": ("Offline smoothing: screen-y outlier threshold, px (paper 5).", (1e-3, 1e4)),
     "offline.iterations": ("Offline smoothing passes (paper 5).", None),
     "offline.adaptive_noise": ("Offline: process noise and measurement-noise scale per trajectory by maximum "

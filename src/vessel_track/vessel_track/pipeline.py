@@ -10,8 +10,8 @@ Detections: ``labels`` = the hand-labelled boxes of the vessel of interest (prim
 frame per labelled frame; ``FILE.csv`` = the detector's output, columns ``video,frame,x1,y1,x2,y2,score,class_id``
 (full-resolution pixels), where every frame of ``frames.csv`` of the chosen videos is a frame of the run
 (frames without a row had no detection). ``--appearance config/appearance_aitas.npz`` rescores detector output
-with the appearance cue (``vessel_track.appearance``: score x probability of being the vessel of interest, boxes
-below probability 0.3 dropped), as the detector node would have to.
+with the appearance cue (``vessel_track.appearance``: the probability of being the vessel of interest replaces the
+score, boxes below probability 0.5 dropped), as the detector node does.
 
 Modes:
 
@@ -503,10 +503,12 @@ def main(argv: list[str] | None = None) -> int:
                              "(e.g. 7-12 with --videos 7-12): out-of-sample scores for the error model fit")
     parser.add_argument("--appearance", type=Path, default=None, metavar="MODEL.npz",
                         help="rescore detector output with this appearance model (vessel_track.appearance; e.g. "
-                             "config/appearance_aitas.npz): score x probability, boxes below "
+                             "config/appearance_aitas.npz): the probability as score, boxes below "
                              "--appearance-min dropped")
     parser.add_argument("--appearance-min", type=float, default=None,
-                        help="with --appearance: drop detections whose probability is below this (default 0.3)")
+                        help="with --appearance: drop detections whose probability is below this (default 0.5)")
+    parser.add_argument("--appearance-combine", choices=("replace", "product"), default="replace",
+                        help="with --appearance: the probability replaces the score, or multiplies it")
     parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
     parser.add_argument("--no-plots", action="store_true", help="score without plots")
     args = parser.parse_args(argv)
@@ -528,7 +530,7 @@ def main(argv: list[str] | None = None) -> int:
                 model = appearance.AppearanceModel.load(args.appearance)
                 minimum = appearance.DEFAULT_MIN_PROBABILITY if args.appearance_min is None else args.appearance_min
                 frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
-                                            appearance.DEFAULT_COMBINE, minimum)
+                                            args.appearance_combine, minimum, camera)
         config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
         if args.leave_one_out:
             results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config)

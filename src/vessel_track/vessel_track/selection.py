@@ -31,6 +31,7 @@ from scipy.optimize import linear_sum_assignment
 from vessel_calib.errors import DataError
 
 _FORBIDDEN = 1e9
+CONFIDENCE_SCORES = ("percentile", "evidence")
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,13 @@ class SelectionConfig:
         fitted to the vessel of interest, so sailboats, ferries and clutter agree less often; with a detector
         that is not trained on the vessel of interest this is most of what tells it apart.
     history_length: confidences kept per track for the percentile.
+    confidence_score: how a trajectory's confidences enter its score: ``percentile`` (the paper's
+        ``confidence_percentile`` of them) or ``evidence``, the sum of their log-odds ``log(c / (1 - c))``, each
+        clipped to +-``evidence_clip``. With confidences that are probabilities of being the vessel of interest
+        (the appearance cue with ``appearance_combine: replace``) evidence accumulates with every frame that
+        looks like the vessel and drains with every frame that does not, so a track that swapped onto the
+        vessel for a few frames does not overtake the one that has followed it all along.
+    evidence_clip: bound of one confidence's log-odds in the ``evidence`` score.
     """
 
     confidence_percentile: float = 50.0
@@ -78,6 +86,8 @@ class SelectionConfig:
     reacquire_fraction: float = 0.9
     size_consistency: bool = False
     history_length: int = 1000
+    confidence_score: str = "percentile"
+    evidence_clip: float = 4.0
 
     def __post_init__(self) -> None:
         """Validate the fields."""
@@ -94,6 +104,11 @@ class SelectionConfig:
             raise DataError(f"selection: max_speed_mps must be > 0, got {self.max_speed_mps!r}")
         if not (math.isfinite(self.switch_ratio) and self.switch_ratio >= 1):
             raise DataError(f"selection: switch_ratio must be >= 1, got {self.switch_ratio!r}")
+        if self.confidence_score not in CONFIDENCE_SCORES:
+            raise DataError(f"selection: confidence_score must be one of {', '.join(CONFIDENCE_SCORES)}, got "
+                            f"{self.confidence_score!r}")
+        if not (math.isfinite(self.evidence_clip) and self.evidence_clip > 0):
+            raise DataError(f"selection: evidence_clip must be > 0, got {self.evidence_clip!r}")
         if self.history_length < 1:
             raise DataError(f"selection: history_length must be >= 1, got {self.history_length!r}")
 
@@ -142,17 +157,23 @@ def significant_step(p0, p1, cov0, cov1, noise_sigmas: float) -> float:
 
 
 def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consistent: int | None = None,
-                     known: int = 0) -> float:
+                     known: int = 0, mode: str = "percentile", evidence_clip: float = 4.0) -> float:
     """The paper's ``c_0.8 * log(l)`` with ``log(max(l, 1))``; 0 for no confidences.
 
-    With ``consistent`` given: times ``(consistent + 1) / (known + 2)``, the smoothed share of boxes whose size
-    agrees with the fitted vessel size (``SelectionConfig.size_consistency``).
+    ``mode="evidence"`` replaces ``c_0.8`` by the sum of the confidences' clipped log-odds
+    (``SelectionConfig.confidence_score``). With ``consistent`` given: times ``(consistent + 1) / (known + 2)``,
+    the smoothed share of boxes whose size agrees with the fitted vessel size (``SelectionConfig.size_consistency``).
     """
     c = np.asarray(confidences, dtype=float).reshape(-1)
     c = c[np.isfinite(c)]
     if c.size == 0 or not math.isfinite(path_m):
         return 0.0
-    score = float(np.percentile(c, percentile) * math.log(max(path_m, 1.0)))
+    if mode == "evidence":
+        p = np.clip(c, 1e-9, 1.0 - 1e-9)
+        confidence = float(np.sum(np.clip(np.log(p / (1.0 - p)), -evidence_clip, evidence_clip)))
+    else:
+        confidence = float(np.percentile(c, percentile))
+    score = confidence * math.log(max(path_m, 1.0))
     if consistent is not None:
         score *= (consistent + 1.0) / (known + 2.0)
     return score
@@ -219,7 +240,7 @@ class Trajectory:
         return trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas),
                                 config.confidence_percentile,
                                 int(np.sum(self.consistent[known] > 0.5)) if config.size_consistency else None,
-                                int(known.sum()))
+                                int(known.sum()), config.confidence_score, config.evidence_clip)
 
     def end_velocity(self, window_s: float = 20.0) -> np.ndarray:
         """Velocity (m/s) over the last ``window_s`` seconds (least squares); zeros with one point."""
@@ -348,7 +369,8 @@ class _Running:
 
     def score(self, config: SelectionConfig) -> float:
         return trajectory_score(np.fromiter(self.confidences, float), self.path_m, config.confidence_percentile,
-                                self.consistent if config.size_consistency else None, self.known)
+                                self.consistent if config.size_consistency else None, self.known,
+                                config.confidence_score, config.evidence_clip)
 
 
 class OnlineTargetSelector:
