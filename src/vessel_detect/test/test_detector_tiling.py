@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vessel_detect.box_ops import box_iou, intersection_over_first, nms
+from vessel_detect.box_ops import box_iou, intersection_over_first, nms, suppress_nested
 from vessel_detect.tiling import (
     BOTTOM,
     LEFT,
@@ -32,6 +32,19 @@ def test_nms_keeps_the_best_of_overlapping_boxes_per_class():
     assert keep.tolist() == [1, 2, 3]  # box 0 suppressed by 1; box 3 is another class
     assert nms(boxes, scores, 0.45).tolist() == [1, 2]  # class-agnostic
     assert nms(np.zeros((0, 4)), np.zeros(0), 0.5).size == 0
+
+
+def test_nested_boxes_keep_only_the_likelier_one():
+    """A hull box and its cabin box (IoU 0.2, so plain NMS keeps both) become one; a neighbour stays."""
+    hull = [100, 100, 150, 120]
+    cabin = [110, 100, 120, 110]       # inside the hull: IoU 0.1, all of the smaller box
+    wake = [140, 105, 200, 125]        # overlaps the hull by 10x15 = 150 of its 1200: kept
+    far = [400, 100, 420, 110]
+    boxes = np.array([hull, cabin, wake, far], float)
+    assert nms(boxes, np.array([0.6, 0.9, 0.5, 0.4]), 0.5).tolist() == [1, 0, 2, 3]
+    assert suppress_nested(boxes, np.array([0.6, 0.9, 0.5, 0.4]), 0.5).tolist() == [1, 2, 3]
+    assert suppress_nested(boxes, np.array([0.9, 0.6, 0.5, 0.4]), 0.5).tolist() == [0, 2, 3]
+    assert suppress_nested(np.zeros((0, 4)), np.zeros(0), 0.5).size == 0
 
 
 def test_nms_threshold_is_strict_above():

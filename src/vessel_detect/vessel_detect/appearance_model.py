@@ -43,6 +43,9 @@ NEAR_DEPTH_M = 5.0
 COMBINE_MODES = ("replace", "product")
 DEFAULT_COMBINE = "replace"
 DEFAULT_MIN_PROBABILITY = 0.5
+#: Of nested boxes (sharing more than this of the smaller one's area) only the likelier is kept: chosen on 7-12 the
+#: same way, offline 10.2 -> 4.9 m/100 m, online 26.1 -> 23.5.
+DEFAULT_NESTED_OVERLAP = 0.5
 
 
 def crop_features(bgr: np.ndarray, boxes_xyxy) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Vectorised box geometry: IoU, intersection over own area, and greedy class-aware NMS."""
+"""Vectorised box geometry: IoU, intersection over own area, greedy class-aware NMS, nested-box suppression."""
 
 from __future__ import annotations
 
@@ -69,3 +69,30 @@ def nms(
         suppressed |= iou[index] > iou_threshold
     return np.asarray(keep, dtype=np.int64)
 
+
+
+def suppress_nested(boxes_xyxy: np.ndarray, scores: np.ndarray, overlap: float) -> np.ndarray:
+    """Indices kept, best first, dropping boxes nested in a better-scored kept box.
+
+    Nested: sharing more than ``overlap`` of the smaller box's area.
+    Plain NMS (IoU) keeps a hull box and a box of its cabin or wake as two boats; after the appearance cue has
+    scored them, keeping only the likelier of nested boxes leaves the tracker one box per vessel.
+    """
+    boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    n = boxes.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    order = np.argsort(-np.asarray(scores, dtype=np.float64).reshape(-1), kind="stable")
+    inter = intersection_areas(boxes, boxes)
+    areas = box_areas(boxes)
+    smaller = np.minimum(areas[:, None], areas[None, :])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(smaller > 0, inter / np.where(smaller > 0, smaller, 1.0), 0.0)
+    suppressed = np.zeros(n, dtype=bool)
+    keep = []
+    for index in order:
+        if suppressed[index]:
+            continue
+        keep.append(index)
+        suppressed |= share[index] > overlap
+    return np.asarray(keep, dtype=np.int64)

@@ -396,6 +396,7 @@ class VesselDetector:
         self.appearance_min_probability = 0.0
         self.appearance_camera = None  # the CameraModel its geometry features need (set by build_detector)
         self.appearance_combine = "replace"
+        self.appearance_nested_overlap = 0.0  # > 0: after the cue, nested boxes keep only the likelier one
         self.last_window_count = 0
 
     @property
@@ -490,6 +491,11 @@ class VesselDetector:
             calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
             detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,
                                             self.appearance_camera, calibration_scale, self.appearance_combine)
+            if self.appearance_nested_overlap > 0 and len(detections) > 1:
+                from vessel_detect.box_ops import suppress_nested
+
+                detections = detections.take(suppress_nested(detections.boxes_xyxy, detections.scores,
+                                                             self.appearance_nested_overlap))
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 

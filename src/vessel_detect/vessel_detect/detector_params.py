@@ -89,6 +89,9 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "the vessel of interest is below this are dropped.", float_range=(0.0, 1.0), read_only=True),
     ParamSpec("appearance_combine", "replace", "With appearance_model: replace (the published score is the "
               "probability) or product (detector score x probability).", read_only=True),
+    ParamSpec("appearance_nested_overlap", 0.5, "With appearance_model: a box sharing more than this share of "
+              "the smaller box's area with a likelier box is dropped (one box per vessel; 0: off).",
+              float_range=(0.0, 1.0), read_only=True),
 )
 
 NODE_PARAMS: tuple[ParamSpec, ...] = (
@@ -233,6 +236,7 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
         if combine not in ("replace", "product"):
             raise VesselError(f"detector parameter 'appearance_combine' must be replace or product, got {combine!r}")
         detector.appearance_combine = combine
+        detector.appearance_nested_overlap = float(values.get("appearance_nested_overlap", 0.5))
     return detector
 
 

@@ -41,6 +41,14 @@ def test_evidence_score_accumulates_log_odds_and_prefers_the_steady_track():
     assert b.score(SelectionConfig(confidence_percentile=80)) > a.score(SelectionConfig(confidence_percentile=80))
 
 
+def test_path_log_floor_lets_confidence_rank_tracks_that_have_not_moved():
+    assert trajectory_score([0.9], 0.5) == 0.0 == trajectory_score([0.3], 0.5)
+    assert trajectory_score([0.9], 0.5, path_log_floor=1.0) > trajectory_score([0.3], 0.5, path_log_floor=1.0)
+    assert trajectory_score([0.9], 500.0, path_log_floor=1.0) == pytest.approx(0.9 * math.log(500.0))
+    with pytest.raises(DataError, match="path_log_floor"):
+        SelectionConfig(path_log_floor=-1.0)
+
+
 def _line(tid, t0, t1, start, velocity, conf=0.8, dt=4.0):
     t = np.arange(t0, t1 + 1e-9, dt)
     pos = np.asarray(start, float) + np.outer(t - t0, velocity)
@@ -101,6 +109,28 @@ def test_online_selection_has_hysteresis():
             switched_at = t
     assert switched_at is not None and selector.switches == 1
     assert switched_at - ahead_since >= 8.0
+
+
+def test_online_evidence_leaves_a_first_track_that_looks_unlike_the_vessel():
+    """Video 11's start: the first of two tracks that have not moved yet looks less like the vessel.
+
+    Confidences 0.8 against 0.99. The paper's score is 0 for both and keeps the first; the evidence score with a
+    path floor hands over after the hold time.
+    """
+    def run(config):
+        selector = OnlineTargetSelector(config)
+        targets = []
+        for k in range(12):
+            tracks = [_wt("A", [340, 50], conf=0.8)]
+            if k >= 1:
+                tracks.append(_wt("B", [260, -48], conf=0.99))
+            targets.append(selector.update(4.0 * k, tracks))
+        return targets
+
+    assert set(run(SelectionConfig())) == {"A"}
+    targets = run(SelectionConfig(confidence_score="evidence", path_log_floor=1.0, switch_hold_s=8.0))
+    assert targets[0] == "A" and targets[-1] == "B"
+    assert targets.index("B") >= 3                      # not before the hold time
 
 
 def test_online_join_keeps_the_target_through_a_new_track_id():

@@ -45,10 +45,12 @@ from vessel_detect.appearance_model import (
     DEFAULT_COMBINE,
     DEFAULT_FEATURE_SET,
     DEFAULT_MIN_PROBABILITY,
+    DEFAULT_NESTED_OVERLAP,
     FEATURE_SETS,
     AppearanceModel,
     detection_features,
 )
+from vessel_detect.box_ops import suppress_nested
 
 POSITIVE_PX = 20.0
 NEGATIVE_PX = 60.0
@@ -124,12 +126,13 @@ def labelled_crops(dataset, camera, videos, frames, feature_set: str = "colour",
 
 
 def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COMBINE,
-            min_probability: float = 0.0, camera=None) -> list:
+            min_probability: float = 0.0, camera=None, nested_overlap: float = 0.0) -> list:
     """``frames`` (pipeline ``DetectionFrame``) with scores replaced by (or multiplied with) the appearance cue.
 
     ``model_for_video(video) -> AppearanceModel`` (one model, or one per video for leave-one-out); detections
-    whose probability is below ``min_probability`` are dropped. ``camera`` is needed by models with geometry
-    features.
+    whose probability is below ``min_probability`` are dropped, and with ``nested_overlap`` > 0 boxes nested in a
+    likelier one (``vessel_detect.box_ops.suppress_nested``), as the detector node does. ``camera`` is needed by
+    models with geometry features.
     """
     import cv2
 
@@ -148,6 +151,9 @@ def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COM
             p = model_for_video(frame.video).probability(image, frame.boxes, frame.scores, camera)
             keep = p >= min_probability
             boxes, scores = boxes[keep], (p if combine == "replace" else frame.scores * p)[keep]
+            if nested_overlap > 0 and len(boxes) > 1:
+                kept = suppress_nested(boxes, scores, nested_overlap)
+                boxes, scores = boxes[kept], scores[kept]
         out.append(DetectionFrame(frame.video, frame.frame, frame.stamp, boxes, np.asarray(scores, float)))
     return out
 
@@ -192,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
                        help="replace the detector score by the probability, or multiply them")
     score.add_argument("--min-probability", type=float, default=DEFAULT_MIN_PROBABILITY,
                        help="drop detections whose probability is below this")
+    score.add_argument("--nested-overlap", type=float, default=DEFAULT_NESTED_OVERLAP,
+                       help="drop boxes sharing more than this share of the smaller one's area with a likelier box "
+                            "(0: off)")
     score.add_argument("--out", type=Path, required=True, help="rescored detections CSV to write")
     args = parser.parse_args(argv)
     try:
@@ -234,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             def model_for_video(video):
                 return single
         write_detections_csv(args.out, rescore(frames, dataset, videos, model_for_video, args.combine,
-                                               args.min_probability, camera))
+                                               args.min_probability, camera, args.nested_overlap))
         print(f"rescored {sum(len(f.boxes) for f in frames)} detections ({args.combine}) -> {args.out}")
     except VesselError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -68,6 +68,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.confidence_score": ("How confidences enter the trajectory score: percentile (the paper's) or "
                                    "evidence (sum of their log-odds; for appearance probabilities).", None),
     "selection.evidence_clip": ("Bound of one confidence's log-odds in the evidence score.", (1e-3, 100.0)),
+    "selection.path_log_floor": ("Lower bound of the path factor log(max(l, 1)) (paper 0: tracks that have not "
+                                 "moved yet all score 0; 1 lets their confidences rank them).", (0.0, 100.0)),
     "offline.outlier_threshold_px": ("Offline smoothing: screen-y outlier threshold, px (paper 5).", (1e-3, 1e4)),
     "offline.iterations": ("Offline smoothing passes (paper 5).", None),
     "offline.adaptive_noise": ("Offline: process noise and measurement-noise scale per trajectory by maximum "

@@ -509,6 +509,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --appearance: drop detections whose probability is below this (default 0.5)")
     parser.add_argument("--appearance-combine", choices=("replace", "product"), default="replace",
                         help="with --appearance: the probability replaces the score, or multiplies it")
+    parser.add_argument("--appearance-nested", type=float, default=0.5,
+                        help="with --appearance: drop boxes nested in a likelier one beyond this share of the "
+                             "smaller box (0: off; the detector node's appearance_nested_overlap)")
     parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
     parser.add_argument("--no-plots", action="store_true", help="score without plots")
     args = parser.parse_args(argv)
@@ -530,7 +533,7 @@ def main(argv: list[str] | None = None) -> int:
                 model = appearance.AppearanceModel.load(args.appearance)
                 minimum = appearance.DEFAULT_MIN_PROBABILITY if args.appearance_min is None else args.appearance_min
                 frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
-                                            args.appearance_combine, minimum, camera)
+                                            args.appearance_combine, minimum, camera, args.appearance_nested)
         config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
         if args.leave_one_out:
             results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config)

@@ -69,6 +69,10 @@ class SelectionConfig:
         looks like the vessel and drains with every frame that does not, so a track that swapped onto the
         vessel for a few frames does not overtake the one that has followed it all along.
     evidence_clip: bound of one confidence's log-odds in the ``evidence`` score.
+    path_log_floor: the path factor is ``max(log(max(l, 1)), path_log_floor)``. The paper's 0 makes every track
+        without significant motion yet score 0, so among them the first one established stays the target
+        however unlike the vessel it looks; 1 (a path of e metres) lets the confidences rank them while any
+        track that has moved farther still wins by its path.
     """
 
     confidence_percentile: float = 50.0
@@ -88,6 +92,7 @@ class SelectionConfig:
     history_length: int = 1000
     confidence_score: str = "percentile"
     evidence_clip: float = 4.0
+    path_log_floor: float = 0.0
 
     def __post_init__(self) -> None:
         """Validate the fields."""
@@ -109,6 +114,8 @@ class SelectionConfig:
                             f"{self.confidence_score!r}")
         if not (math.isfinite(self.evidence_clip) and self.evidence_clip > 0):
             raise DataError(f"selection: evidence_clip must be > 0, got {self.evidence_clip!r}")
+        if not (math.isfinite(self.path_log_floor) and self.path_log_floor >= 0):
+            raise DataError(f"selection: path_log_floor must be a finite number >= 0, got {self.path_log_floor!r}")
         if self.history_length < 1:
             raise DataError(f"selection: history_length must be >= 1, got {self.history_length!r}")
 
@@ -157,12 +164,14 @@ def significant_step(p0, p1, cov0, cov1, noise_sigmas: float) -> float:
 
 
 def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consistent: int | None = None,
-                     known: int = 0, mode: str = "percentile", evidence_clip: float = 4.0) -> float:
+                     known: int = 0, mode: str = "percentile", evidence_clip: float = 4.0,
+                     path_log_floor: float = 0.0) -> float:
     """The paper's ``c_0.8 * log(l)`` with ``log(max(l, 1))``; 0 for no confidences.
 
     ``mode="evidence"`` replaces ``c_0.8`` by the sum of the confidences' clipped log-odds
-    (``SelectionConfig.confidence_score``). With ``consistent`` given: times ``(consistent + 1) / (known + 2)``,
-    the smoothed share of boxes whose size agrees with the fitted vessel size (``SelectionConfig.size_consistency``).
+    (``SelectionConfig.confidence_score``); ``path_log_floor`` bounds the path factor from below. With
+    ``consistent`` given: times ``(consistent + 1) / (known + 2)``, the smoothed share of boxes whose size agrees
+    with the fitted vessel size (``SelectionConfig.size_consistency``).
     """
     c = np.asarray(confidences, dtype=float).reshape(-1)
     c = c[np.isfinite(c)]
@@ -173,7 +182,7 @@ def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consi
         confidence = float(np.sum(np.clip(np.log(p / (1.0 - p)), -evidence_clip, evidence_clip)))
     else:
         confidence = float(np.percentile(c, percentile))
-    score = confidence * math.log(max(path_m, 1.0))
+    score = confidence * max(math.log(max(path_m, 1.0)), path_log_floor)
     if consistent is not None:
         score *= (consistent + 1.0) / (known + 2.0)
     return score
@@ -240,7 +249,8 @@ class Trajectory:
         return trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas),
                                 config.confidence_percentile,
                                 int(np.sum(self.consistent[known] > 0.5)) if config.size_consistency else None,
-                                int(known.sum()), config.confidence_score, config.evidence_clip)
+                                int(known.sum()), config.confidence_score, config.evidence_clip,
+                                config.path_log_floor)
 
     def end_velocity(self, window_s: float = 20.0) -> np.ndarray:
         """Velocity (m/s) over the last ``window_s`` seconds (least squares); zeros with one point."""
@@ -370,7 +380,7 @@ class _Running:
     def score(self, config: SelectionConfig) -> float:
         return trajectory_score(np.fromiter(self.confidences, float), self.path_m, config.confidence_percentile,
                                 self.consistent if config.size_consistency else None, self.known,
-                                config.confidence_score, config.evidence_clip)
+                                config.confidence_score, config.evidence_clip, config.path_log_floor)
 
 
 class OnlineTargetSelector:
