@@ -112,7 +112,7 @@ class CameraNode(Node):
                 )
         if self.rate == 0:
             self.create_subscription(
-                message_class(bag_io.DETECTION_2D_ARRAY), p["ack_topic"], self._on_ack, reliable_qos(10)
+                message_class(p["ack_type"]), p["ack_topic"], self._on_ack, reliable_qos(10)
             )
         if p["camera_fix_from_parameters"] and p["camera_fix_topic"] not in getattr(self.source, "aux_topics", []):
             self._publish_parameter_fix()
@@ -175,6 +175,8 @@ class CameraNode(Node):
               int_range=(0, 10000))
         param("ack_topic", "/vessel/detections", "At rate 0: the detector output whose arrival releases the next "
               "frame (vessel_msgs/Detection2DArray with the image's stamp).")
+        param("ack_type", bag_io.DETECTION_2D_ARRAY, "At rate 0: message type of ack_topic, any with a header "
+              "(e.g. vessel_msgs/msg/VesselTrackArray to pace on the fuser's /vessel/tracks).")
         param("ack_timeout_s", 2.0, "At rate 0: publish the next frame after this long without detections.",
               float_range=(0.01, 600.0))
         param("wait_for_subscribers", -1, "Before the first frame, wait until this many subscribers are matched on "

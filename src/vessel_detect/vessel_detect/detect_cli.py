@@ -60,8 +60,12 @@ def _parse_videos(spec: str | None):
     return parse_videos(spec)
 
 
-def _camera_for(dataset, params_camera):
-    """The calibration: the params file's camera block, else the dataset's camera.json calibration."""
+def _camera_for(dataset, params_camera, calib=None):
+    """The calibration: ``--calib``, else the params file's camera block, else the dataset's camera.json one."""
+    if calib:
+        from vessel_calib.params import load_camera_yaml
+
+        return load_camera_yaml(calib)
     if params_camera is not None:
         return params_camera
     try:
@@ -128,7 +132,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """``run``: detections of every frame to CSV."""
     dataset = _open_dataset(args.data)
     values, params_camera = load_params_file(args.params)
-    detector = build_detector(values, _camera_for(dataset, params_camera))
+    detector = build_detector(values, _camera_for(dataset, params_camera, args.calib))
     frames = dataset.frames(_parse_videos(args.videos))
     if not frames:
         raise DataError(f"no frames for videos {args.videos or 'all'} in {dataset.path / 'frames.csv'}")
@@ -247,7 +251,7 @@ def cmd_recall(args: argparse.Namespace) -> int:
     if not labels:
         raise DataError(f"no hand-labelled frames for videos {args.videos} in {dataset.path}")
     values, params_camera = load_params_file(args.params)
-    camera = _camera_for(dataset, params_camera)
+    camera = _camera_for(dataset, params_camera, args.calib)
     if args.detections:
         detections = read_detections_csv(Path(args.detections))
         source = f"detections from {args.detections}"
@@ -446,6 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--videos", help="e.g. 13-17 or 7,9 (default: all)")
     run.add_argument("--out", required=True, help="CSV to write (video,frame,x1,y1,x2,y2,score,class_id)")
     run.add_argument("--params", help="parameter YAML: its detector: and camera: blocks (default: the node's defaults)")
+    run.add_argument("--calib", help="calibration parameter YAML (e.g. config/aitas_camera.yaml; default: the "
+                     "params file's camera block, else the dataset's camera.json)")
     run.add_argument("--quiet", action="store_true", help="no progress line")
     run.set_defaults(func=cmd_run)
 
@@ -454,6 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     recall.add_argument("--videos", default="6-17")
     recall.add_argument("--detections", help="a CSV from 'run' (default: run the detector on the labelled frames)")
     recall.add_argument("--params")
+    recall.add_argument("--calib", help="calibration parameter YAML (default as for run)")
     recall.add_argument("--score", type=float, help="score threshold (default: the detector's)")
     recall.add_argument("--thresholds", type=lambda s: [float(v) for v in s.split(",")],
                         help="comma-separated score thresholds to report (a sweep)")

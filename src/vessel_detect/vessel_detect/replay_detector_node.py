@@ -74,6 +74,10 @@ class ReplayDetectorNode(Node):
         image_topic = declare_parameter(self, "compressed_topic", "/camera/image_raw/compressed",
                                         "CompressedImage topic to follow ('' to not subscribe; pace images)")
         raw_topic = declare_parameter(self, "image_topic", "", "Image topic to follow ('' to not subscribe)")
+        image_qos = declare_parameter(self, "image_qos", "sensor_data", "QoS of the image subscriptions: "
+                                      "sensor_data (best effort) or reliable (with a camera publishing reliably, "
+                                      "no image is lost when the replay answers faster than a detector would)",
+                                      read_only=True, additional_constraints="sensor_data | reliable")
         output_topic = declare_parameter(self, "detections_topic", "/vessel/detections", "Detection2DArray output")
         ack_topic = declare_parameter(self, "ack_topic", "/vessel/tracks/screen", "pace self: the next array goes "
                                       "when a VesselTrackArray with the previous stamp arrives here")
@@ -85,6 +89,9 @@ class ReplayDetectorNode(Node):
                                            int_range=(0, 100))
         if self._pace not in ("images", "self"):
             raise DataError(f"pace must be 'images' or 'self', not {self._pace!r}")
+        if image_qos not in ("sensor_data", "reliable"):
+            raise DataError(f"image_qos must be 'sensor_data' or 'reliable', not {image_qos!r}")
+        qos = SENSOR_DATA_QOS if image_qos == "sensor_data" else reliable_qos(5)
         self._rows = load_detection_rows(Path(csv_path)) if csv_path else {}
         if not csv_path:
             self.get_logger().warning("detections_csv is empty: every image gets an empty Detection2DArray")
@@ -95,9 +102,9 @@ class ReplayDetectorNode(Node):
         self.finished = False
         if self._pace == "images":
             if image_topic:
-                self.create_subscription(CompressedImage, image_topic, self._on_image, SENSOR_DATA_QOS)
+                self.create_subscription(CompressedImage, image_topic, self._on_image, qos)
             if raw_topic:
-                self.create_subscription(Image, raw_topic, self._on_image, SENSOR_DATA_QOS)
+                self.create_subscription(Image, raw_topic, self._on_image, qos)
             return
         self._next_index = 0
         self._awaiting: float | None = None

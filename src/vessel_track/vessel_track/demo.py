@@ -1,11 +1,11 @@
 """``./vessel demo``: the whole node graph on challenge videos, recorded, scored like the paper, plotted.
 
-For each video: build its bag if needed, start recorder, detector (or the hand labels through
-``replay_detector``), tracker, fuser and GPS publisher as separate processes, wait until they are all connected,
-replay the bag through the camera node as fast as the graph consumes it, wait until every frame has come out of
-the fuser, and stop the graph with SIGINT. Then read the recorded bags back and write ``predictions.csv``
-(the vessel of interest as published on ``/vessel/fix``), ``predictions_offline.csv`` (the same after the paper's
-offline smoothing pass), ``tracks.csv``, ``summary.json`` and plots, and print a short table.
+For each video: build its bag if needed, start recorder, detector (or, through ``replay_detector``, the hand
+labels or a saved ``./vessel detect run`` CSV), tracker, fuser and GPS publisher as separate processes, wait until
+they are all connected, replay the bag through the camera node as fast as the graph consumes it, wait until every
+frame has come out of the fuser, and stop the graph with SIGINT. Then read the recorded bags back and write
+``predictions.csv`` (the vessel of interest as published on ``/vessel/fix``), ``predictions_offline.csv`` (the same
+after the paper's offline smoothing pass), ``tracks.csv``, ``summary.json`` and plots, and print a short table.
 """
 
 from __future__ import annotations
@@ -54,8 +54,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "from the dataset's training labels (videos 7-12), else from the shared set's, else "
                         "config/aitas_camera.yaml")
     parser.add_argument("--params", type=Path, default=None, help="graph parameter file (default config/aitas.yaml)")
-    parser.add_argument("--detections", choices=("detector", "labels"), default="detector",
-                        help="detector: run the ONNX detector node; labels: feed the hand-labelled boxes")
+    parser.add_argument("--detections", default="detector", metavar="detector|labels|FILE.csv",
+                        help="detector: run the ONNX detector node; labels: feed the hand-labelled boxes; "
+                             "FILE.csv: replay a saved detector run (`./vessel detect run --out FILE.csv`, columns "
+                             "video,frame,x1,y1,x2,y2,score,class_id) in step with the camera")
     parser.add_argument("--bags", type=Path, default=None, help="where the video bags are (built if missing; "
                         "default bags/ for the shared set, bags/<dataset folder name> for others)")
     parser.add_argument("--max-frames", type=int, default=0, help="replay at most this many frames per video "
@@ -105,6 +107,28 @@ def prepare_bags(dataset: Dataset, videos: list[int], bag_root: Path) -> dict[in
         log(f"building bags for videos {missing} into {bag_root}")
         build_from_dataset(dataset.path, bag_root, missing, BuildOptions(overwrite=True), report=log)
     return {v: bag_root / f"video_{v}" for v in videos}
+
+
+def write_saved_detections(frames, video: int, path: Path) -> int:
+    """One video's frames of a saved detector run (``pipeline.DetectionFrame``) as a ``replay_detector`` CSV.
+
+    Returns the number of the video's frames; frames without boxes have no row (the replay detector, following
+    the camera, publishes an empty array for their images).
+    """
+    from vessel_detect.replay_detector_node import CSV_COLUMNS
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    count = 0
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        for frame in frames:
+            if frame.video != video:
+                continue
+            count += 1
+            for box, score in zip(frame.boxes, frame.scores, strict=True):
+                writer.writerow([f"{frame.stamp:.6f}", *(f"{v:.2f}" for v in box), f"{score:.6f}", "boat"])
+    return count
 
 
 def write_label_detections(dataset: Dataset, video: int, path: Path) -> int:
@@ -188,11 +212,12 @@ class VideoRun:
 
 
 def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, label_csv: Path | None,
-              log_dir: Path, frames_expected: int) -> VideoRun:
+              log_dir: Path, frames_expected: int, saved_csv: Path | None = None) -> VideoRun:
     """One video through the whole graph as separate processes; the outputs recorded to ``recording``.
 
-    The source is the camera replaying the video's bag into the detector, or, with hand labels, the replay
-    detector publishing the labelled boxes on their own stamps. It ends when every frame has come out of the
+    The source is the camera replaying the video's bag into the detector (or into the replay detector
+    publishing the boxes of ``saved_csv`` for each image), or, with hand labels, the replay detector publishing
+    the labelled boxes on their own stamps. It ends when every frame has come out of the
     fuser, or when the source has finished and nothing more has come out for a few seconds (a frame lost on the
     way), or after ``--frame-timeout`` seconds without progress.
     """
@@ -209,6 +234,9 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
         if labels:  # self-paced: it waits for the tracker and the recorder before sending anything
             runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
                                            "wait_for_subscribers": 2})
+        elif saved_csv is not None:
+            runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",
+                                           "image_qos": "reliable"})
         else:
             runner.start(nodes["detector"])
         deadline = time.monotonic() + 60
@@ -225,6 +253,9 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
             source = "camera"
             camera_parameters: dict[str, object] = {"source": str(bag), "rate": 0.0, "loop": False,
                                                     "exit_at_end": True}
+            if saved_csv is not None:  # the replay answers at once: pace on the fuser, send images reliably
+                camera_parameters.update(image_qos="reliable", ack_topic="/vessel/tracks",
+                                         ack_type="vessel_msgs/msg/VesselTrackArray")
             if args.max_frames:
                 camera_parameters["max_frames"] = args.max_frames
             runner.start(nodes["camera"], camera_parameters)
@@ -355,6 +386,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         absent = [v for v in videos if v not in available]
         if absent:
             raise VesselError(f"video(s) {absent} are not in {data} (it has {available})")
+        saved = None
+        if args.detections not in ("detector", "labels"):  # read first: a bad file fails before any work
+            from vessel_track.pipeline import csv_detections
+
+            saved = csv_detections(Path(args.detections), dataset, videos)
         out = args.out or repo_root() / "out" / "demo"
         out.mkdir(parents=True, exist_ok=True)
         calibration = prepare_calibration(dataset, args.calib, out)
@@ -369,6 +405,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             unlabelled = [v for v, count in frames_per_video.items() if count == 0]
             if unlabelled:
                 raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
+        elif saved is not None:
+            for v in videos:
+                write_saved_detections(saved, v, out / "saved_detections" / f"video_{v}.csv")
+            frames_per_video = {v: len(dataset.frames([v])) for v in videos}
         else:
             frames_per_video = {v: len(dataset.frames([v])) for v in videos}
         runs = []
@@ -381,8 +421,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 shutil.rmtree(recording)
             recording.parent.mkdir(parents=True, exist_ok=True)
             log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
+            saved_csv = out / "saved_detections" / f"video_{video}.csv" if saved is not None else None
             run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
-                            frames_per_video[video])
+                            frames_per_video[video], saved_csv)
             log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
                 f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
             runs.append(run)
