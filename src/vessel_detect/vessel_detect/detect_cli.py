@@ -132,6 +132,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     """``run``: detections of every frame to CSV."""
     dataset = _open_dataset(args.data)
     values, params_camera = load_params_file(args.params)
+    if args.no_cue:
+        values["appearance_model"] = ""
     detector = build_detector(values, _camera_for(dataset, params_camera, args.calib))
     frames = dataset.frames(_parse_videos(args.videos))
     if not frames:
@@ -452,6 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--params", help="parameter YAML: its detector: and camera: blocks (default: the node's defaults)")
     run.add_argument("--calib", help="calibration parameter YAML (e.g. config/aitas_camera.yaml; default: the "
                      "params file's camera block, else the dataset's camera.json)")
+    run.add_argument("--no-cue", action="store_true", help="leave out the params file's appearance_model (the raw "
+                     "detector output a cue is fitted on: `python -m vessel_track.appearance fit`)")
     run.add_argument("--quiet", action="store_true", help="no progress line")
     run.set_defaults(func=cmd_run)
 

@@ -192,3 +192,20 @@ def test_rescore_multiplies_and_drops_below_minimum(monkeypatch):
     np.testing.assert_allclose(out.scores, [0.9, 0.2])
     with pytest.raises(DataError):
         ap.rescore([frame], Frames(), [1], lambda v: Fixed(), "sum")
+
+
+def test_top_box_share_counts_frames_where_the_vessel_is_the_best_box():
+    from types import SimpleNamespace
+
+    track = SimpleNamespace(stamps=[0.0, 10.0], interpolate=lambda t, max_gap_s: (1.0, 1.0, t < 5.0))
+    dataset = SimpleNamespace(gps_track=lambda: track)
+    camera = SimpleNamespace(gps_to_screen=lambda lat, lon: (100.0, 100.0, True), in_image=lambda x, y: True)
+    vessel, other = [95, 95, 105, 105], [300, 95, 310, 105]
+    frames = [
+        DetectionFrame(13, 0, 0.0, np.array([vessel, other], float), np.array([0.9, 0.2])),  # first
+        DetectionFrame(13, 1, 1.0, np.array([vessel, other], float), np.array([0.2, 0.9])),  # not first
+        DetectionFrame(13, 2, 2.0, np.array([other], float), np.array([0.9])),               # no vessel box
+        DetectionFrame(13, 3, 8.0, np.array([vessel], float), np.array([0.9])),              # no GPS
+        DetectionFrame(14, 0, 0.0, np.array([vessel], float), np.array([0.5])),
+    ]
+    assert ap.top_box_share(dataset, camera, frames) == {13: (1, 2), 14: (1, 1)}
