@@ -36,6 +36,18 @@ def intersection_over_first(a_xyxy: np.ndarray, b_xyxy: np.ndarray) -> np.ndarra
         return np.where(area > 0, inter / np.where(area > 0, area, 1.0), 0.0)
 
 
+def _greedy_keep(overlap: np.ndarray, order: np.ndarray, threshold: float) -> np.ndarray:
+    """Walk ``order``; keep a box unless a kept one overlaps it by more than ``threshold`` (``overlap`` N x N)."""
+    suppressed = np.zeros(overlap.shape[0], dtype=bool)
+    keep = []
+    for index in order:
+        if suppressed[index]:
+            continue
+        keep.append(index)
+        suppressed |= overlap[index] > threshold
+    return np.asarray(keep, dtype=np.int64)
+
+
 def nms(
     boxes_xyxy: np.ndarray,
     scores: np.ndarray,
@@ -49,38 +61,27 @@ def nms(
     default processing order (descending score), e.g. to prefer boxes not cut by a tile edge.
     """
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
-    n = boxes.shape[0]
-    if n == 0:
+    if boxes.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
     scores = np.asarray(scores, dtype=np.float64).reshape(-1)
     if order is None:
         order = np.argsort(-scores, kind="stable")
-    order = np.asarray(order, dtype=np.int64)
     iou = box_iou(boxes, boxes)
     if class_ids is not None:
         ids = np.asarray(class_ids).reshape(-1)
         iou = np.where(ids[:, None] == ids[None, :], iou, 0.0)
-    suppressed = np.zeros(n, dtype=bool)
-    keep = []
-    for index in order:
-        if suppressed[index]:
-            continue
-        keep.append(index)
-        suppressed |= iou[index] > iou_threshold
-    return np.asarray(keep, dtype=np.int64)
-
+    return _greedy_keep(iou, np.asarray(order, dtype=np.int64), iou_threshold)
 
 
 def suppress_nested(boxes_xyxy: np.ndarray, scores: np.ndarray, overlap: float) -> np.ndarray:
     """Indices kept, best first, dropping boxes nested in a better-scored kept box.
 
-    Nested: sharing more than ``overlap`` of the smaller box's area.
-    Plain NMS (IoU) keeps a hull box and a box of its cabin or wake as two boats; after the appearance cue has
-    scored them, keeping only the likelier of nested boxes leaves the tracker one box per vessel.
+    Nested: sharing more than ``overlap`` of the smaller box's area. Plain NMS (IoU) keeps a hull box and a box
+    of its cabin or wake as two boats; after the appearance cue has scored them, keeping only the likelier of
+    nested boxes leaves the tracker one box per vessel.
     """
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
-    n = boxes.shape[0]
-    if n == 0:
+    if boxes.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
     order = np.argsort(-np.asarray(scores, dtype=np.float64).reshape(-1), kind="stable")
     inter = intersection_areas(boxes, boxes)
@@ -88,11 +89,4 @@ def suppress_nested(boxes_xyxy: np.ndarray, scores: np.ndarray, overlap: float) 
     smaller = np.minimum(areas[:, None], areas[None, :])
     with np.errstate(invalid="ignore", divide="ignore"):
         share = np.where(smaller > 0, inter / np.where(smaller > 0, smaller, 1.0), 0.0)
-    suppressed = np.zeros(n, dtype=bool)
-    keep = []
-    for index in order:
-        if suppressed[index]:
-            continue
-        keep.append(index)
-        suppressed |= share[index] > overlap
-    return np.asarray(keep, dtype=np.int64)
+    return _greedy_keep(share, order, overlap)

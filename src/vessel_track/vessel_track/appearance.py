@@ -53,6 +53,7 @@ from vessel_detect.appearance_model import (
     detection_features,
 )
 from vessel_detect.box_ops import suppress_nested
+from vessel_track.distance_model import pixels_from_vessel
 
 POSITIVE_PX = 20.0
 NEGATIVE_PX = 60.0
@@ -109,16 +110,13 @@ def labelled_crops(dataset, camera, videos, frames, feature_set: str = "colour",
             raise DataError(f"appearance: cannot read the image of video {frame.video} frame {frame.frame} "
                             f"({path})")
         label = np.full(len(frame.boxes), -1)
-        lat, lon, ok = track.interpolate(frame.stamp, max_gap_s=3.0) if len(track.stamps) else (0, 0, False)
-        if ok:
-            xs, ys, in_front = camera.gps_to_screen(lat, lon)
-            if in_front and camera.in_image(xs, ys):
-                centres = (frame.boxes[:, :2] + frame.boxes[:, 2:]) / 2.0
-                distance = np.hypot(centres[:, 0] - xs, centres[:, 1] - ys)
-                label = np.where(distance > NEGATIVE_PX, 0, -1)
-                nearest = int(np.argmin(distance))
-                if distance[nearest] <= POSITIVE_PX:
-                    label[nearest] = 1
+        found = pixels_from_vessel(track, camera, frame)
+        if found is not None:
+            distance = found[0]
+            label = np.where(distance > NEGATIVE_PX, 0, -1)
+            nearest = int(np.argmin(distance))
+            if distance[nearest] <= POSITIVE_PX:
+                label[nearest] = 1
         features.append(detection_features(feature_set, image, frame.boxes, frame.scores, camera, size_model))
         labels.append(label)
         video_of.append(np.full(len(frame.boxes), frame.video))
@@ -137,16 +135,10 @@ def top_box_share(dataset, camera, frames, radius_px: float = POSITIVE_PX) -> di
     track = dataset.gps_track()
     out: dict[int, list[int]] = {}
     for frame in frames:
-        if len(frame.boxes) == 0:
+        found = pixels_from_vessel(track, camera, frame)
+        if found is None:
             continue
-        lat, lon, ok = track.interpolate(frame.stamp, max_gap_s=3.0) if len(track.stamps) else (0, 0, False)
-        if not ok:
-            continue
-        xs, ys, in_front = camera.gps_to_screen(lat, lon)
-        if not (in_front and camera.in_image(xs, ys)):
-            continue
-        centres = (frame.boxes[:, :2] + frame.boxes[:, 2:]) / 2.0
-        near = np.hypot(centres[:, 0] - xs, centres[:, 1] - ys) <= radius_px
+        near = found[0] <= radius_px
         if not near.any():
             continue
         counts = out.setdefault(frame.video, [0, 0])

@@ -222,6 +222,25 @@ def training_pairs(dataset, camera, videos: list[int] | None):
     return boxes, np.column_stack([xw, yw])
 
 
+def pixels_from_vessel(track, camera, frame, max_gap_s: float = 3.0):
+    """Pixels from each box centre of ``frame`` to the vessel's projected GPS position, and that position.
+
+    ``(distances (N,), (lat, lon))``, or None where the GPS cannot be interpolated (fixes more than ``max_gap_s``
+    apart), the vessel is behind the camera or outside the image, or the frame has no boxes. This is how the
+    detector's output gets labels without hand labelling (the paper's trick).
+    """
+    if len(frame.boxes) == 0 or not len(track.stamps):
+        return None
+    lat, lon, ok = track.interpolate(frame.stamp, max_gap_s=max_gap_s)
+    if not ok:
+        return None
+    xs, ys, in_front = camera.gps_to_screen(lat, lon)
+    if not (in_front and camera.in_image(xs, ys)):
+        return None
+    centres = (frame.boxes[:, :2] + frame.boxes[:, 2:]) / 2.0
+    return np.hypot(centres[:, 0] - xs, centres[:, 1] - ys), (lat, lon)
+
+
 def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Path, max_px: float = 30.0):
     """Detector boxes of the vessel of interest with its world position: (boxes (N, 4), world (N, 2)).
 
@@ -235,16 +254,10 @@ def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Pa
     track = dataset.gps_track()
     boxes, world = [], []
     for frame in csv_detections(detections_csv, dataset, videos):
-        if len(frame.boxes) == 0:
+        found = pixels_from_vessel(track, camera, frame)
+        if found is None:
             continue
-        lat, lon, ok = track.interpolate(frame.stamp, max_gap_s=3.0)
-        if not ok:
-            continue
-        xs, ys, in_front = camera.gps_to_screen(lat, lon)
-        if not (in_front and camera.in_image(xs, ys)):
-            continue
-        centers = (frame.boxes[:, :2] + frame.boxes[:, 2:]) / 2.0
-        distance = np.hypot(centers[:, 0] - xs, centers[:, 1] - ys)
+        distance, (lat, lon) = found
         best = int(np.argmin(distance))
         if distance[best] <= max_px:
             boxes.append(frame.boxes[best])
