@@ -147,6 +147,28 @@ def top_box_share(dataset, camera, frames, radius_px: float = POSITIVE_PX) -> di
     return {video: (first, total) for video, (first, total) in sorted(out.items())}
 
 
+def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIVE_PX) -> list[str]:
+    """``video,t_utc_s,lat,lon`` lines: each frame's box nearest the vessel's projected GPS, back-projected.
+
+    A baseline without tracker, fusion or selection (and with the right box picked by the GPS): what the tracker
+    and fuser have to beat, as the per-frame back-projection of hand boxes is for hand boxes. Frames without a
+    box within ``radius_px`` give no line.
+    """
+    from vessel_track.pipeline import _seconds_of_day
+
+    track = dataset.gps_track()
+    lines = ["video,t_utc_s,lat,lon"]
+    for frame in frames:
+        found = pixels_from_vessel(track, camera, frame)
+        if found is None or found[0].min() > radius_px:
+            continue
+        box = frame.boxes[int(np.argmin(found[0]))]
+        lat, lon, valid = camera.screen_to_gps((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0)
+        if bool(np.all(valid)):
+            lines.append(f"{frame.video},{_seconds_of_day(frame.stamp):.3f},{float(lat):.8f},{float(lon):.8f}")
+    return lines
+
+
 def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COMBINE,
             min_probability: float = 0.0, camera=None, nested_overlap: float = 0.0) -> list:
     """``frames`` (pipeline ``DetectionFrame``) with scores replaced by (or multiplied with) the appearance cue.
@@ -230,13 +252,23 @@ def main(argv: list[str] | None = None) -> int:
     rank.add_argument("--detections", type=Path, required=True, help="detector CSV (raw or rescored)")
     rank.add_argument("--calib", type=Path, default=None, help="calibration YAML (default config/aitas_camera.yaml)")
     rank.add_argument("--radius", type=float, default=POSITIVE_PX, help="px from the vessel's projected GPS")
+    rank.add_argument("--per-frame-out", type=Path, default=None, metavar="PREDICTIONS.csv",
+                      help="also write the per-frame back-projection of the box nearest the vessel's GPS (a "
+                           "baseline; score it with ./vessel eval)")
     args = parser.parse_args(argv)
     try:
         dataset = open_dataset(args.data)
         videos = parse_videos(args.videos)
         camera, _ = load_camera(args.calib, dataset)
         if args.command == "rank":
-            shares = top_box_share(dataset, camera, csv_detections(args.detections, dataset, videos), args.radius)
+            frames = csv_detections(args.detections, dataset, videos)
+            if args.per_frame_out is not None:
+                from vessel_track.pipeline import _atomic_lines
+
+                lines = per_frame_backprojection(dataset, camera, frames, args.radius)
+                _atomic_lines(args.per_frame_out, lines)
+                print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
+            shares = top_box_share(dataset, camera, frames, args.radius)
             if not shares:
                 raise DataError(f"{args.detections}: no frame of videos {args.videos} has a box within "
                                 f"{args.radius:g} px of the vessel's projected GPS")
