@@ -193,3 +193,21 @@ def test_no_stand_in_right_after_the_target_is_lost():
     assert selector.update(100.0, [_wt("S", [-300, 310], conf=0.6, velocity=(0, 0.1))]) is None
     # Long after the loss, the best remaining vessel is the target again.
     assert selector.update(120.0, [_wt("S", [-300, 312], conf=0.6, velocity=(0, 0.1))]) == "S"
+
+
+def test_a_long_reacquire_window_never_puts_a_stand_in_in_the_lost_targets_place():
+    """Video 17: the vessel runs off beyond detection; another boat is not published as the vessel."""
+    selector = OnlineTargetSelector(SelectionConfig(reacquire_fraction=0.9, join_max_gap_s=30.0,
+                                                    reacquire_window_s=3600.0))
+    for k in range(20):
+        selector.update(4.0 * k, [_wt("A", [100 + 12.0 * k, 50], velocity=(3.0, 0)),
+                                  _wt("S", [-300, 300 + 0.4 * k], conf=0.6, velocity=(0, 0.1))])
+    selector.update(80.0, [_wt("A", [340, 50], status=3), _wt("S", [-300, 308], conf=0.6)])
+    assert selector.update(120.0, [_wt("S", [-300, 312], conf=0.6, velocity=(0, 0.1))]) is None
+    assert selector.update(2000.0, [_wt("S", [-300, 312], conf=0.6, velocity=(0, 0.1))]) is None
+    # A vessel that earns the lost target's share of the score does take over.
+    for k in range(60):
+        target = selector.update(2004.0 + 4.0 * k, [_wt("B", [100 + 12.0 * k, -50], conf=0.95, velocity=(3.0, 0))])
+    assert target == "B"
+    with pytest.raises(DataError, match="reacquire_window_s"):
+        SelectionConfig(reacquire_window_s=-1.0)

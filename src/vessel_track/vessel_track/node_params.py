@@ -61,13 +61,15 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.switch_margin": ("See switch_ratio.", (0.0, 1e6)),
     "selection.switch_hold_s": ("... for this long, s.", (0.0, 1e6)),
     "selection.reacquire_fraction": ("After the target's track ended, another track needs this share of its score "
-                                     "to take over (for join_max_gap_s).", (0.0, 1.0)),
+                                     "to take over (for reacquire_window_s).", (0.0, 1.0)),
     "selection.size_consistency": ("Weight the trajectory score by the share of boxes whose size agrees with "
                                    "their position for a vessel of the fitted size.", None),
     "selection.history_length": ("Confidences kept per track for the percentile.", None),
     "selection.confidence_score": ("How confidences enter the trajectory score: percentile (the paper's) or "
                                    "evidence (sum of their log-odds; for appearance probabilities).", None),
     "selection.evidence_clip": ("Bound of one confidence's log-odds in the evidence score.", (1e-3, 100.0)),
+    "selection.reacquire_window_s": ("For this long after the target's track ended, another track needs "
+                                     "reacquire_fraction of its score to take over, s.", (0.0, 1e9)),
     "selection.path_log_floor": ("Lower bound of the path factor log(max(l, 1)) (paper 0: tracks that have not "
                                  "moved yet all score 0; 1 lets their confidences rank them).", (0.0, 100.0)),
     "offline.outlier_threshold_px": ("Offline smoothing: screen-y outlier threshold, px (paper 5).", (1e-3, 1e4)),

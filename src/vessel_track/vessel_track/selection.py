@@ -54,9 +54,12 @@ class SelectionConfig:
     max_speed_mps: a join implying a faster motion is refused.
     switch_ratio, switch_margin: a challenger must score above ``current * ratio + margin`` ...
     switch_hold_s: ... for this long before it becomes the target.
-    reacquire_fraction: for ``join_max_gap_s`` after the target's track ended, another track becomes the target
+    reacquire_fraction: for ``reacquire_window_s`` after the target's track ended, another track becomes the target
         only with at least this share of the lost target's score (so a sailboat does not inherit the role the
         moment the vessel of interest leaves the view; the vessel itself is re-acquired by joining).
+    reacquire_window_s: how long that rule holds (default 30 s, the join gap). Long (the challenge config: an
+        hour) means no stand-in: the GPS publisher sends NO_FIX rather than another boat as the vessel of interest
+        until a track has earned the lost one's share of evidence.
     size_consistency: multiply the score by the share of the trajectory's boxes whose size agrees with their
         position for a vessel of the fitted size (Laplace-smoothed: (k + 1) / (n + 2)). The distance model is
         fitted to the vessel of interest, so sailboats, ferries and clutter agree less often; with a detector
@@ -88,6 +91,7 @@ class SelectionConfig:
     switch_margin: float = 0.3
     switch_hold_s: float = 8.0
     reacquire_fraction: float = 0.9
+    reacquire_window_s: float = 30.0
     size_consistency: bool = False
     history_length: int = 1000
     confidence_score: str = "percentile"
@@ -100,7 +104,7 @@ class SelectionConfig:
             raise DataError(f"selection: confidence_percentile must be in [0, 100], got {self.confidence_percentile}")
         if not 0 <= self.reacquire_fraction <= 1:
             raise DataError(f"selection: reacquire_fraction must be in [0, 1], got {self.reacquire_fraction!r}")
-        for name in ("min_step_m", "path_noise_sigmas", "join_max_gap_s", "join_max_overlap_s",
+        for name in ("min_step_m", "path_noise_sigmas", "join_max_gap_s", "join_max_overlap_s", "reacquire_window_s",
                      "join_gate_m", "join_gate_range_frac", "join_gate_speed_mps", "switch_margin", "switch_hold_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -591,7 +595,7 @@ class OnlineTargetSelector:
             if self._pending_target not in self._running:
                 self._pending_target = None
         if self.target is None or self.target not in self._running:
-            if stamp - self._lost_stamp <= cfg.join_max_gap_s and \
+            if stamp - self._lost_stamp <= cfg.reacquire_window_s and \
                     scores[best] < cfg.reacquire_fraction * self._lost_score:
                 self.target = None  # the vessel of interest was lost a moment ago: no stand-in for it
                 return None
