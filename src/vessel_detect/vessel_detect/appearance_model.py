@@ -253,19 +253,40 @@ class AppearanceModel:
             raise ModelError(f"{path}: {error}; re-run `python -m vessel_track.appearance fit`") from None
 
 
-def rescore_detections(detections, bgr: np.ndarray, model: AppearanceModel,
-                       min_probability: float = DEFAULT_MIN_PROBABILITY, camera=None,
-                       calibration_scale=(1.0, 1.0), combine: str = DEFAULT_COMBINE):
-    """``Detections`` scored by the appearance probability, boxes whose probability is below the minimum dropped.
+def score_with_cue(model: AppearanceModel, bgr: np.ndarray, boxes_xyxy, scores,
+                   min_probability: float = DEFAULT_MIN_PROBABILITY, camera=None, calibration_scale=(1.0, 1.0),
+                   combine: str = DEFAULT_COMBINE, nested_overlap: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(indices of the boxes kept, their new scores): what the detector node and ``pipeline --appearance`` do.
 
-    ``combine``: ``replace`` the score by the probability, or the ``product`` of both.
+    ``combine``: ``replace`` the score by the probability, or the ``product`` of both; boxes whose probability is
+    below ``min_probability`` are dropped, and with ``nested_overlap`` > 0 boxes nested in a likelier one
+    (``box_ops.suppress_nested``; the kept ones then come best first).
     """
+    from vessel_detect.box_ops import suppress_nested
+
     if combine not in COMBINE_MODES:
         raise ModelError(f"appearance: combine must be one of {', '.join(COMBINE_MODES)}, got {combine!r}")
+    boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+    scores = np.asarray(scores, dtype=float).reshape(-1)
+    if len(boxes) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    probability = model.probability(bgr, boxes, scores, camera, calibration_scale)
+    keep = np.flatnonzero(probability >= min_probability)
+    new_scores = probability[keep] if combine == "replace" else scores[keep] * probability[keep]
+    if nested_overlap > 0 and len(keep) > 1:
+        order = suppress_nested(boxes[keep], new_scores, nested_overlap)
+        keep, new_scores = keep[order], new_scores[order]
+    return keep, new_scores
+
+
+def rescore_detections(detections, bgr: np.ndarray, model: AppearanceModel,
+                       min_probability: float = DEFAULT_MIN_PROBABILITY, camera=None,
+                       calibration_scale=(1.0, 1.0), combine: str = DEFAULT_COMBINE, nested_overlap: float = 0.0):
+    """``Detections`` scored by the appearance cue (``score_with_cue``)."""
     if len(detections) == 0:
         return detections
-    probability = model.probability(bgr, detections.boxes_xyxy, detections.scores, camera, calibration_scale)
-    keep = probability >= min_probability
+    keep, new_scores = score_with_cue(model, bgr, detections.boxes_xyxy, detections.scores, min_probability, camera,
+                                      calibration_scale, combine, nested_overlap)
     kept = detections.take(keep)
-    kept.scores = probability[keep] if combine == "replace" else kept.scores * probability[keep]
+    kept.scores = new_scores
     return kept

@@ -490,12 +490,8 @@ class VesselDetector:
 
             calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
             detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,
-                                            self.appearance_camera, calibration_scale, self.appearance_combine)
-            if self.appearance_nested_overlap > 0 and len(detections) > 1:
-                from vessel_detect.box_ops import suppress_nested
-
-                detections = detections.take(suppress_nested(detections.boxes_xyxy, detections.scores,
-                                                             self.appearance_nested_overlap))
+                                            self.appearance_camera, calibration_scale, self.appearance_combine,
+                                            self.appearance_nested_overlap)
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 

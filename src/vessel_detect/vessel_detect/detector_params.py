@@ -220,7 +220,7 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
     detector = VesselDetector(model or open_model(values), config, horizon, reference)
     if values.get("appearance_model"):
         from vessel_calib.dataset import repo_root
-        from vessel_detect.appearance_model import AppearanceModel
+        from vessel_detect.appearance_model import COMBINE_MODES, AppearanceModel
 
         path = Path(values["appearance_model"]).expanduser()
         if not path.is_absolute() and not path.is_file():
@@ -233,8 +233,9 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
         detector.appearance_camera = camera_model
         detector.appearance_min_probability = float(values.get("appearance_min_probability", 0.5))
         combine = str(values.get("appearance_combine", "replace"))
-        if combine not in ("replace", "product"):
-            raise VesselError(f"detector parameter 'appearance_combine' must be replace or product, got {combine!r}")
+        if combine not in COMBINE_MODES:
+            raise VesselError(f"detector parameter 'appearance_combine' must be one of {' or '.join(COMBINE_MODES)}, "
+                              f"got {combine!r}")
         detector.appearance_combine = combine
         detector.appearance_nested_overlap = float(values.get("appearance_nested_overlap", 0.5))
     return detector

@@ -172,7 +172,7 @@ def test_shipped_cue_ranks_the_vessel_first_among_the_detectors_boxes(data_dir, 
 
 def test_rescore_multiplies_and_drops_below_minimum(monkeypatch):
     class Fixed:
-        def probability(self, image, boxes, scores=None, camera=None):
+        def probability(self, image, boxes, scores=None, camera=None, calibration_scale=(1.0, 1.0)):
             return np.array([0.9, 0.2])
 
     class Frames:

@@ -51,8 +51,8 @@ from vessel_detect.appearance_model import (
     FEATURE_SETS,
     AppearanceModel,
     detection_features,
+    score_with_cue,
 )
-from vessel_detect.box_ops import suppress_nested
 from vessel_track.distance_model import pixels_from_vessel
 
 POSITIVE_PX = 20.0
@@ -175,8 +175,8 @@ def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COM
 
     ``model_for_video(video) -> AppearanceModel`` (one model, or one per video for leave-one-out); detections
     whose probability is below ``min_probability`` are dropped, and with ``nested_overlap`` > 0 boxes nested in a
-    likelier one (``vessel_detect.box_ops.suppress_nested``), as the detector node does. ``camera`` is needed by
-    models with geometry features.
+    likelier one: ``vessel_detect.appearance_model.score_with_cue``, as the detector node does. ``camera`` is
+    needed by models with geometry features.
     """
     import cv2
 
@@ -192,12 +192,9 @@ def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COM
             image = cv2.imread(str(paths.get((frame.video, frame.frame))))
             if image is None:
                 raise DataError(f"appearance: cannot read the image of video {frame.video} frame {frame.frame}")
-            p = model_for_video(frame.video).probability(image, frame.boxes, frame.scores, camera)
-            keep = p >= min_probability
-            boxes, scores = boxes[keep], (p if combine == "replace" else frame.scores * p)[keep]
-            if nested_overlap > 0 and len(boxes) > 1:
-                kept = suppress_nested(boxes, scores, nested_overlap)
-                boxes, scores = boxes[kept], scores[kept]
+            keep, scores = score_with_cue(model_for_video(frame.video), image, frame.boxes, frame.scores,
+                                          min_probability, camera, combine=combine, nested_overlap=nested_overlap)
+            boxes = boxes[keep]
         out.append(DetectionFrame(frame.video, frame.frame, frame.stamp, boxes, np.asarray(scores, float)))
     return out
 
