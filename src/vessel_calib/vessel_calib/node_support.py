@@ -44,6 +44,15 @@ LATCHED_QOS = QoSProfile(
 """Reliable and transient local: a late subscriber still gets the last sample (e.g. the camera's fix)."""
 
 
+def image_qos_profile(name: str) -> QoSProfile:
+    """The QoS of an image subscription named by an ``image_qos`` parameter: ``sensor_data`` or ``reliable``."""
+    if name == "sensor_data":
+        return SENSOR_DATA_QOS
+    if name == "reliable":
+        return reliable_qos(5)
+    raise VesselError(f"image_qos '{name}' unknown: use sensor_data or reliable")
+
+
 def reliable_qos(depth: int = 10) -> QoSProfile:
     """Reliable, volatile, keep last ``depth``: detections, tracks and fixes, where no message may be lost."""
     return QoSProfile(

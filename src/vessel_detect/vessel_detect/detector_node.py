@@ -34,6 +34,7 @@ from vessel_calib.node_support import (
     NodeHealth,
     declare_camera_model,
     declare_parameter,
+    image_qos_profile,
     main_for,
     reliable_qos,
 )
@@ -118,7 +119,7 @@ class DetectorNode(Node):
         self.annotated_pub = None
         if values["publish_annotated"]:
             self.annotated_pub = self.create_publisher(Image, values["annotated_topic"], SENSOR_DATA_QOS)
-        qos = self._image_qos(values["image_qos"])
+        qos = image_qos_profile(values["image_qos"])
         self._image_subscriptions = []
         if values["subscribe_compressed"]:
             self._image_subscriptions.append(self.create_subscription(
@@ -140,14 +141,6 @@ class DetectorNode(Node):
             f"{self.detector.reference_wh[0]}x{self.detector.reference_wh[1]} frame, score >= "
             f"{config.score_threshold}) on {', '.join(topics)} -> {values['detections_topic']}"
         )
-
-    @staticmethod
-    def _image_qos(name: str):
-        if name == "sensor_data":
-            return SENSOR_DATA_QOS
-        if name == "reliable":
-            return reliable_qos(5)
-        raise VesselError(f"image_qos '{name}' unknown: use sensor_data or reliable")
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         """Thresholds may change while running; everything else is read-only (declared so)."""

@@ -27,9 +27,9 @@ from std_msgs.msg import Header
 
 from vessel_calib.errors import DataError
 from vessel_calib.node_support import (
-    SENSOR_DATA_QOS,
     NodeHealth,
     declare_parameter,
+    image_qos_profile,
     main_for,
     reliable_qos,
     sec_to_stamp,
@@ -89,9 +89,7 @@ class ReplayDetectorNode(Node):
                                            int_range=(0, 100))
         if self._pace not in ("images", "self"):
             raise DataError(f"pace must be 'images' or 'self', not {self._pace!r}")
-        if image_qos not in ("sensor_data", "reliable"):
-            raise DataError(f"image_qos must be 'sensor_data' or 'reliable', not {image_qos!r}")
-        qos = SENSOR_DATA_QOS if image_qos == "sensor_data" else reliable_qos(5)
+        qos = image_qos_profile(image_qos)
         self._rows = load_detection_rows(Path(csv_path)) if csv_path else {}
         if not csv_path:
             self.get_logger().warning("detections_csv is empty: every image gets an empty Detection2DArray")
