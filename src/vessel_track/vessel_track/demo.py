@@ -109,26 +109,23 @@ def prepare_bags(dataset: Dataset, videos: list[int], bag_root: Path) -> dict[in
     return {v: bag_root / f"video_{v}" for v in videos}
 
 
-def write_saved_detections(frames, video: int, path: Path) -> int:
+def write_saved_detections(frames, video: int, path: Path) -> None:
     """One video's frames of a saved detector run (``pipeline.DetectionFrame``) as a ``replay_detector`` CSV.
 
-    Returns the number of the video's frames; frames without boxes have no row (the replay detector, following
-    the camera, publishes an empty array for their images).
+    Frames without boxes have no row (the replay detector, following the camera, publishes an empty array for
+    their images).
     """
     from vessel_detect.replay_detector_node import CSV_COLUMNS
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    count = 0
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(CSV_COLUMNS)
         for frame in frames:
             if frame.video != video:
                 continue
-            count += 1
             for box, score in zip(frame.boxes, frame.scores, strict=True):
                 writer.writerow([f"{frame.stamp:.6f}", *(f"{v:.2f}" for v in box), f"{score:.6f}", "boat"])
-    return count
 
 
 def write_label_detections(dataset: Dataset, video: int, path: Path) -> int:
@@ -405,12 +402,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             unlabelled = [v for v, count in frames_per_video.items() if count == 0]
             if unlabelled:
                 raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
-        elif saved is not None:
-            for v in videos:
-                write_saved_detections(saved, v, out / "saved_detections" / f"video_{v}.csv")
-            frames_per_video = {v: len(dataset.frames([v])) for v in videos}
         else:
             frames_per_video = {v: len(dataset.frames([v])) for v in videos}
+        saved_csvs = {v: out / "saved_detections" / f"video_{v}.csv" for v in videos} if saved is not None else {}
+        for v, path in saved_csvs.items():
+            write_saved_detections(saved, v, path)
         runs = []
         for video in videos:
             label_csv = out / "labels" / f"video_{video}.csv" if args.detections == "labels" else None
@@ -421,9 +417,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 shutil.rmtree(recording)
             recording.parent.mkdir(parents=True, exist_ok=True)
             log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
-            saved_csv = out / "saved_detections" / f"video_{video}.csv" if saved is not None else None
             run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
-                            frames_per_video[video], saved_csv)
+                            frames_per_video[video], saved_csvs.get(video))
             log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
                 f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
             runs.append(run)
