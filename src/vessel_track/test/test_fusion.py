@@ -18,6 +18,7 @@ from vessel_track.fusion import (
     fuse_boxes,
     gls_weights,
 )
+from vessel_track.selection import SelectionConfig
 from vessel_track.simulation import challenge_camera
 
 MODEL = BoxSizeDistanceModel(a=3000.0, b=5.0, c=1500.0, d=2.0)
@@ -155,3 +156,48 @@ def test_cue_statistics_validation():
         FusionConfig(weights_mode="magic")
     with pytest.raises(DataError):
         FusionConfig(anchor=2.0)
+
+
+def _centre_size(box):
+    return (box[:2] + box[2:]) / 2, box[2:] - box[:2]
+
+
+def test_a_joined_track_continues_the_world_filter_of_the_one_it_continues():
+    """The new track id of a vessel the tracker lost keeps the old filter's velocity (not a cold start at 0 m/s)."""
+    cam = challenge_camera()
+    fuser = TrackFuser(cam, MODEL)
+    path = np.column_stack([150.0 + 3.0 * np.arange(12) * 4, 120.0 + 0.0 * np.arange(12)])
+    boxes = _boxes_at(cam, path)
+    for k in range(8):
+        fuser.update(1000.0 + 4 * k, [_track("A", *_centre_size(boxes[k]))])
+    fuser.update(1032.0, [_track("A", *_centre_size(boxes[7]), status=3, updated=False)])
+    out = {w.screen.track_id: w for w in fuser.update(1036.0, [_track("B", *_centre_size(boxes[9]), status=0)])}
+    assert fuser.selector.continued == {"B": "A"}
+    assert out["B"].is_target
+    assert out["B"].velocity == pytest.approx([3.0, 0.0], abs=0.5)
+    assert np.hypot(*(out["B"].position - path[9])) < 5.0
+    # Without the join (a fuser that never saw A) the same box starts at rest.
+    cold = TrackFuser(cam, MODEL).update(1036.0, [_track("B", *_centre_size(boxes[9]), status=0)])
+    assert cold[0].velocity == pytest.approx([0.0, 0.0])
+
+
+def test_a_target_track_that_jumps_onto_another_vessel_stops_being_the_target():
+    """A track moved onto another boat stops being the vessel of interest.
+
+    A live camera (10 frames/s): the tracker's track of the vessel moves onto a boat 60 m away, which the world
+    filter rejects ``max_rejections`` times in a row; the track's identity changes and no fix is published for the
+    other boat.
+    """
+    cam = challenge_camera()
+    fuser = TrackFuser(cam, MODEL, selection_config=SelectionConfig(reacquire_window_s=3600.0))
+    t = np.arange(80) * 0.1
+    vessel = np.column_stack([60.0 + 3.0 * t, 40.0 + 0.0 * t])
+    other = np.column_stack([120.0 + 0.0 * t, 20.0 + 0.0 * t])
+    targets = []
+    for k in range(80):
+        where = vessel[k] if k < 60 else other[k]
+        box = _boxes_at(cam, where[None, :])[0]
+        out = fuser.update(1000.0 + t[k], [_track("A", *_centre_size(box))])
+        targets.append(out[0].is_target)
+    assert all(targets[:60]) and not any(targets[65:])
+    assert fuser.counts["identity_changed"] == 1 and fuser.selector.identity_changes == 1

@@ -211,3 +211,44 @@ def test_a_long_reacquire_window_never_puts_a_stand_in_in_the_lost_targets_place
     assert target == "B"
     with pytest.raises(DataError, match="reacquire_window_s"):
         SelectionConfig(reacquire_window_s=-1.0)
+
+
+def test_identity_change_ends_the_targets_history_and_a_join_can_give_it_back():
+    """The target's world filter stopped fitting it: its history ends; it comes back only through a join."""
+    def warmed_up():
+        selector = OnlineTargetSelector(SelectionConfig(reacquire_window_s=3600.0))
+        for k in range(10):
+            selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)),
+                                      _wt("S", [-300, 300], conf=0.6)])
+        assert selector.target == "A"
+        return selector
+
+    # The track now follows another boat, far from where the vessel would be: no target, no stand-in.
+    selector = warmed_up()
+    score_before = selector.score("A")
+    selector.identity_changed("A", 40.0)
+    target = selector.update(40.0, [_wt("A", [-100, 400]), _wt("S", [-300, 300], conf=0.6)])
+    assert target is None and selector.identity_changes == 1
+    assert selector.score("A") < score_before
+    # Unknown tracks are ignored.
+    selector.identity_changed("nobody", 40.0)
+    assert selector.identity_changes == 1
+
+    # A bias, not another boat: the new position still continues the history, which the join gives back.
+    selector = warmed_up()
+    selector.identity_changed("A", 40.0)
+    target = selector.update(40.0, [_wt("A", [185, 52], velocity=(2.0, 0)), _wt("S", [-300, 300], conf=0.6)])
+    assert target == "A" and selector.continued == {"A": "A~1"}
+    assert selector.score("A") >= score_before
+
+
+def test_continued_names_this_frames_joins_and_handovers():
+    selector = OnlineTargetSelector()
+    for k in range(8):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0))])
+    assert selector.continued == {}
+    selector.update(32.0, [_wt("A", [164, 50], status=2, updated=False, velocity=(2.0, 0)),
+                           _wt("B", [166, 58], status=0)])
+    assert selector.continued == {"B": "A"}
+    selector.update(36.0, [_wt("B", [170, 58], status=0)])
+    assert selector.continued == {}

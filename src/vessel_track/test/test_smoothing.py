@@ -76,16 +76,17 @@ def test_outlier_masking_drops_a_gross_outlier_and_keeps_the_rest():
 def test_filter_restarts_on_backwards_stamps_gaps_and_repeated_outliers():
     kf = WorldKalmanFilter(MotionConfig(max_gap_s=30.0, max_rejections=2))
     R = np.eye(2)
-    assert kf.update(100.0, [0, 0], R).restarted
-    assert not kf.update(104.0, [1, 0], R).restarted
-    assert kf.update(50.0, [5, 5], R).restarted
+    assert kf.update(100.0, [0, 0], R).restart_reason == "start"
+    step = kf.update(104.0, [1, 0], R)
+    assert not step.restarted and step.restart_reason == ""
+    assert kf.update(50.0, [5, 5], R).restart_reason == "backwards"
     assert kf.events["restart_backwards"] == 1
-    assert kf.update(500.0, [6, 6], R).restarted
+    assert kf.update(500.0, [6, 6], R).restart_reason == "gap"
     assert kf.events["restart_gap"] == 1
     assert kf.predict(501.0) is not None
     assert not kf.update(502.0, [1000, 1000], R).accepted
     out = kf.update(503.0, [1000, 1000], R)
-    assert out.restarted and kf.events["restart_rejections"] == 1
+    assert out.restarted and out.restart_reason == "rejections" and kf.events["restart_rejections"] == 1
 
 
 def test_invalid_measurements_are_counted_not_fatal():

@@ -39,6 +39,8 @@ PROBLEM_MESSAGES = {
     "beyond_max_range": "a box beyond fusion.max_range_m gave no position",
     "invalid_box": "a box could not be undistorted (outside the lens model)",
     "outlier_rejected": "a fused position far from its track's prediction was rejected by the world filter",
+    "identity_changed": "a track's positions stopped fitting its world filter (motion.max_rejections outliers in a "
+                        "row): the tracker may have moved it onto another vessel, so its history was ended",
     "nonfinite_stamp": "a track array with a non-finite stamp was dropped",
 }
 

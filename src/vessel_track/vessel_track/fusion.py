@@ -18,6 +18,7 @@ vessel-of-interest selection: it is the core of the ``fuser`` node and of the pi
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -399,6 +400,10 @@ class WorldTrack:
 class TrackFuser:
     """Per-frame fusion, per-track world Kalman filter and online target selection.
 
+    The filters follow the selection's view of identity: a track the selection joins to an earlier one continues
+    that one's filter, and a track whose filter restarts after ``motion.max_rejections`` outliers in a row has its
+    selection history ended (``OnlineTargetSelector.identity_changed``).
+
     ``update(stamp, tracks)`` takes every track of one image (``ScreenTrack``) and returns a ``WorldTrack``
     for each. ``counts`` records bad input and rejections by kind (for the node's diagnostics).
     """
@@ -418,6 +423,7 @@ class TrackFuser:
         self.selector = OnlineTargetSelector(selection_config or SelectionConfig())
         self.error_model = error_model or ErrorModel()
         self.filters: dict[str, WorldKalmanFilter] = {}
+        self._ended_filters: dict[str, WorldKalmanFilter] = {}   # of ended tracks, while a join may continue them
         self.last_stamp: float | None = None
         self.counts: dict[str, int] = {}
 
@@ -427,6 +433,7 @@ class TrackFuser:
     def reset(self) -> None:
         """Forget every track (a replay restarted)."""
         self.filters.clear()
+        self._ended_filters.clear()
         self.selector.reset()
         self.last_stamp = None
 
@@ -457,6 +464,7 @@ class TrackFuser:
                            self.fusion_config, self.cue_stats) if measured else None
         fused_by_id = {t.track_id: i for i, t in enumerate(measured)}
         world_tracks: list[WorldTrack] = []
+        changed_identity: list[str] = []
         for track in good:
             wt = WorldTrack(track, stamp)
             kf = self.filters.get(track.track_id)
@@ -464,6 +472,7 @@ class TrackFuser:
             if track.status == STATUS_LOST:
                 if kf is not None and kf.initialised:
                     result = kf.predict(stamp)
+                    self._ended_filters[track.track_id] = kf
                 self.filters.pop(track.track_id, None)
             elif track.track_id in fused_by_id:
                 i = fused_by_id[track.track_id]
@@ -478,6 +487,9 @@ class TrackFuser:
                     result = kf.update(stamp, fused.world[i], fused.covariance[i])
                     if result is not None and not result.accepted and not result.restarted:
                         self._count("outlier_rejected")
+                    if result is not None and result.restart_reason == "rejections":
+                        self._count("identity_changed")
+                        changed_identity.append(track.track_id)
                 else:
                     wt.rejected_reason = REASON_NAMES[int(fused.reason[i])]
                     self._count(wt.rejected_reason)
@@ -487,11 +499,43 @@ class TrackFuser:
             if result is not None:
                 self._fill_world(wt, result)
             world_tracks.append(wt)
+        present = {t.track_id for t in tracks}
+        for tid in [t for t in self.filters if t not in present]:
+            self._ended_filters[tid] = self.filters.pop(tid)  # vanished without a LOST report
+        for tid in changed_identity:
+            self.selector.identity_changed(tid, stamp)
         target = self.selector.update(stamp, world_tracks)
+        self._continue_filters(stamp, world_tracks)
+        max_gap = self.selector.config.join_max_gap_s
+        self._ended_filters = {tid: kf for tid, kf in self._ended_filters.items()
+                               if kf.stamp is not None and 0 <= stamp - kf.stamp <= max_gap}
         for wt in world_tracks:
             wt.score = self.selector.score(wt.screen.track_id)
             wt.is_target = target is not None and wt.screen.track_id == target and wt.screen.status != STATUS_LOST
         return out + world_tracks
+
+    def _continue_filters(self, stamp: float, world_tracks: list[WorldTrack]) -> None:
+        """A track the selection joined to an earlier one (``selector.continued``) continues that one's filter too.
+
+        Its own filter started from this frame's measurement with no velocity; the earlier track's filter knows
+        how the vessel was moving, so the next frames are gated against that motion (a track that then jumps onto
+        another vessel is seen by the world gate: ``identity_changed``).
+        """
+        by_id = {wt.screen.track_id: wt for wt in world_tracks}
+        for new_id, old_id in self.selector.continued.items():
+            wt = by_id.get(new_id)
+            old = self._ended_filters.pop(old_id, None)
+            if old is None and old_id in self.filters:
+                old = copy.deepcopy(self.filters[old_id])  # a handover: the old track still coasts on its own
+            if wt is None or old is None or not old.initialised or wt.measured_position is None:
+                continue
+            result = old.update(stamp, wt.measured_position, wt.measured_covariance)
+            if result is None:
+                continue
+            if not result.accepted and not result.restarted:
+                self._count("outlier_rejected")
+            self.filters[new_id] = old
+            self._fill_world(wt, result)
 
     def _fill_world(self, wt: WorldTrack, result: FilterOutput) -> None:
         clip = self.fusion_config.clip_m

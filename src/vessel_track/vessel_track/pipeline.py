@@ -308,7 +308,8 @@ def run_screen_tracks(video: int, screen_frames, camera, config: PipelineConfig)
                                                  float(target.position[0]), float(target.position[1]),
                                                  target.screen.track_id, target.screen.updated))
     result.counts = {**{f"fuser.{k}": v for k, v in fuser.counts.items()},
-                     "selection.switches": fuser.selector.switches, "selection.joins": fuser.selector.joins}
+                     "selection.switches": fuser.selector.switches, "selection.joins": fuser.selector.joins,
+                     "selection.identity_changes": fuser.selector.identity_changes}
     if config.mode == "offline":
         _offline_pass(result, stamps, camera, config)
     return result

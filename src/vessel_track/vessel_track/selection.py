@@ -408,6 +408,10 @@ class OnlineTargetSelector:
         self._pending_target: str | None = None
         self.switches = 0
         self.joins = 0
+        self.identity_changes = 0
+        #: This frame's continuations, new track id -> the id whose history it took (online joins and handovers):
+        #: the fuser continues the world filter with them.
+        self.continued: dict[str, str] = {}
 
     def reset(self) -> None:
         """Forget everything (a replay restarted)."""
@@ -420,6 +424,7 @@ class OnlineTargetSelector:
         self._lost_score = 0.0
         self._lost_stamp = math.nan
         self._pending_target = None
+        self.continued = {}
 
     def score(self, track_id: str) -> float:
         """Current score of a track (0 for an unknown one)."""
@@ -447,6 +452,7 @@ class OnlineTargetSelector:
             return None
         inherited = self._ended.pop(best)
         inherited.inherited_from = best
+        self.continued[track_id] = best
         self.joins += 1
         if best == self._last_target_ended:
             self._pending_target = track_id  # the vessel of interest is back: it takes over at once
@@ -455,6 +461,7 @@ class OnlineTargetSelector:
     def update(self, stamp: float, world_tracks) -> str | None:
         """Update the running scores with one frame and return the vessel of interest's track id."""
         cfg = self.config
+        self.continued = {}
         present: set[str] = set()
         measured_now: set[str] = set()
         for wt in world_tracks:
@@ -518,6 +525,23 @@ class OnlineTargetSelector:
         self._handover(stamp, measured_now)
         return self._choose(stamp)
 
+    def identity_changed(self, track_id: str, stamp: float) -> None:
+        """The track's world motion stopped fitting its history (its filter restarted after repeated outliers).
+
+        The screen tracker may have moved the track onto another vessel: its history ends here (kept under a new
+        name, like a track that ended) and the track starts afresh with the next ``update``, where the online join
+        gives the history back if its new position still continues it. If it was the vessel of interest, the
+        target is lost: no stand-in takes over unless the join brings the history back.
+        """
+        running = self._running.pop(track_id, None)
+        if running is None:
+            return
+        self.identity_changes += 1
+        key = f"{track_id}~{self.identity_changes}"
+        self._ended[key] = running
+        if track_id == self.target:
+            self._target_lost(key, running, stamp)
+
     def _target_lost(self, tid: str, running: _Running, stamp: float) -> None:
         self._last_target_ended = tid
         self._lost_score = running.score(self.config)
@@ -565,6 +589,7 @@ class OnlineTargetSelector:
         candidate.path_m += current.path_m + float(np.hypot(*(candidate.first_position - current.last_position)))
         candidate.inherited_from = self.target
         candidate.established = True
+        self.continued[best] = self.target
         del self._running[self.target]
         self.target = best
         self._challenger = None

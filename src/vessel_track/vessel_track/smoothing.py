@@ -104,6 +104,7 @@ class FilterOutput:
     covariance: np.ndarray   # (4, 4)
     accepted: bool           # the measurement of this step was used (False: rejected or prediction only)
     restarted: bool          # the filter restarted at this step (first measurement, gap, stamps backwards)
+    restart_reason: str = "" # why: "start", "gap", "backwards" or "rejections" (the track stopped fitting)
 
     @property
     def position(self) -> np.ndarray:
@@ -155,32 +156,33 @@ class WorldKalmanFilter:
         self.stamp = None
         self.rejections_in_row = 0
 
-    def _start(self, stamp: float, z: np.ndarray, R: np.ndarray) -> FilterOutput:
+    def _start(self, stamp: float, z: np.ndarray, R: np.ndarray, reason: str) -> FilterOutput:
         self.state = np.array([z[0], z[1], 0.0, 0.0])
         self.covariance = np.zeros((4, 4))
         self.covariance[:2, :2] = R
         self.covariance[2, 2] = self.covariance[3, 3] = self.config.initial_speed_std**2
         self.stamp = stamp
         self.rejections_in_row = 0
-        return self._output(True, True)
+        return self._output(True, reason)
 
-    def _output(self, accepted: bool, restarted: bool) -> FilterOutput:
-        return FilterOutput(float(self.stamp), self.state.copy(), self.covariance.copy(), accepted, restarted)
+    def _output(self, accepted: bool, restart_reason: str = "") -> FilterOutput:
+        return FilterOutput(float(self.stamp), self.state.copy(), self.covariance.copy(), accepted,
+                            bool(restart_reason), restart_reason)
 
-    def _check_time(self, stamp: float) -> bool:
-        """Return False (and reset) when the stamp cannot continue the current track."""
+    def _time_problem(self, stamp: float) -> str:
+        """Why ``stamp`` cannot continue the current track ("" if it can); the filter is reset then."""
         if self.stamp is None:
-            return False
+            return "start"
         dt = stamp - self.stamp
         if dt < 0:
             self.events["restart_backwards"] += 1
             self.reset()
-            return False
+            return "backwards"
         if dt > self.config.max_gap_s:
             self.events["restart_gap"] += 1
             self.reset()
-            return False
-        return True
+            return "gap"
+        return ""
 
     def _predict_in_place(self, stamp: float, noise_scale: float = 1.0) -> None:
         dt = stamp - self.stamp
@@ -198,10 +200,10 @@ class WorldKalmanFilter:
 
     def predict(self, stamp: float) -> FilterOutput | None:
         """Advance to ``stamp`` without a measurement; None when the filter has nothing to predict from."""
-        if not self._check_time(stamp):
+        if self._time_problem(stamp):
             return None
         self._predict_in_place(stamp)
-        return self._output(False, False)
+        return self._output(False)
 
     def update(self, stamp: float, z, R) -> FilterOutput | None:
         """Take the measurement ``z`` (2,) with covariance ``R`` (2, 2) made at ``stamp`` (seconds).
@@ -213,8 +215,9 @@ class WorldKalmanFilter:
         if not _validate_measurement(z, R):
             self.events["invalid_measurement"] += 1
             return self.predict(stamp) if self.initialised else None
-        if not self._check_time(stamp):
-            return self._start(stamp, z, R)
+        problem = self._time_problem(stamp)
+        if problem:
+            return self._start(stamp, z, R, problem)
         before = (self.state.copy(), self.covariance.copy(), self.stamp)
         self._predict_in_place(stamp)
         innovation = z - _H @ self.state
@@ -236,8 +239,8 @@ class WorldKalmanFilter:
             self.rejections_in_row += 1
             if self.rejections_in_row >= self.config.max_rejections:
                 self.events["restart_rejections"] += 1
-                return self._start(stamp, z, R)
-            return self._output(False, False)
+                return self._start(stamp, z, R, "rejections")
+            return self._output(False)
         self.rejections_in_row = 0
         K = self.covariance @ _H.T @ np.linalg.inv(S)
         self.state = self.state + K @ innovation
@@ -245,7 +248,7 @@ class WorldKalmanFilter:
         # Joseph form: stays symmetric positive definite over thousands of steps.
         self.covariance = I_KH @ self.covariance @ I_KH.T + K @ R @ K.T
         self._clip_speed()
-        return self._output(True, False)
+        return self._output(True)
 
 
 @dataclass
