@@ -252,3 +252,17 @@ def test_continued_names_this_frames_joins_and_handovers():
     assert selector.continued == {"B": "A"}
     selector.update(36.0, [_wt("B", [170, 58], status=0)])
     assert selector.continued == {}
+
+
+def test_a_tentative_first_guess_gives_way_at_once_to_a_likelier_track():
+    """Video 11's start: both tracks are still tentative; the hold time protects established targets only."""
+    config = SelectionConfig(confidence_score="evidence", path_log_floor=1.0, switch_hold_s=8.0)
+    selector = OnlineTargetSelector(config)
+    first = selector.update(0.0, [_wt("A", [340, 50], conf=0.93, status=0), _wt("B", [290, -48], conf=0.9, status=0)])
+    assert first == "A"
+    second = selector.update(4.0, [_wt("A", [340, 50], conf=0.7, status=0), _wt("B", [290, -48], conf=0.99, status=0)])
+    assert second == "B" and selector.switches == 1
+    # Once established, the same change of fortunes waits for the hold time.
+    selector = OnlineTargetSelector(config)
+    assert selector.update(0.0, [_wt("A", [340, 50], conf=0.93), _wt("B", [290, -48], conf=0.9)]) == "A"
+    assert selector.update(4.0, [_wt("A", [340, 50], conf=0.7), _wt("B", [290, -48], conf=0.99)]) == "A"

@@ -53,7 +53,8 @@ class SelectionConfig:
         gate = join_gate_m + join_gate_range_frac * range + join_gate_speed_mps * gap.
     max_speed_mps: a join implying a faster motion is refused.
     switch_ratio, switch_margin: a challenger must score above ``current * ratio + margin`` ...
-    switch_hold_s: ... for this long before it becomes the target.
+    switch_hold_s: ... for this long before it becomes the target. The hysteresis holds an established target;
+        a target that is still tentative (the first guess at the start) gives way at once to any better score.
     reacquire_fraction: for ``reacquire_window_s`` after the target's track ended, another track becomes the target
         only with at least this share of the lost target's score (so a sailboat does not inherit the role the
         moment the vessel of interest leaves the view; the vessel itself is re-acquired by joining).
@@ -628,6 +629,11 @@ class OnlineTargetSelector:
             self._challenger = None
             return self.target
         current = scores.get(self.target, self._running[self.target].score(cfg))
+        if not self._running[self.target].established and best != self.target and scores[best] > current:
+            self.target = best  # the hold time protects an established target, not a tentative first guess
+            self._challenger = None
+            self.switches += 1
+            return self.target
         if best == self.target or scores[best] <= current * cfg.switch_ratio + cfg.switch_margin:
             self._challenger = None
             return self.target
