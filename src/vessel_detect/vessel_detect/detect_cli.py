@@ -29,10 +29,10 @@ import numpy as np
 
 from vessel_calib.errors import DataError, VesselError
 from vessel_detect.box_ops import box_iou
+from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 from vessel_detect.detector import Detections, VesselDetector
 from vessel_detect.detector_params import build_detector, load_params_file
 
-CSV_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score", "class_id")
 HIT_IOU = 0.3
 # Box size of a vessel from |z_p| (full-resolution pixels): size = a / |z_p| + b.
 PAPER_BOX = ((3000.0, 50.0), (1700.0, 50.0))  # the paper's half-resolution formula, doubled
@@ -103,28 +103,8 @@ def detections_csv_text(rows: Iterable[tuple[int, int, Detections]]) -> str:
     writer.writerow(CSV_COLUMNS)
     for video, frame, dets in rows:
         for box, score, class_id in zip(dets.boxes_xyxy, dets.scores, dets.class_ids, strict=True):
-            writer.writerow([video, frame, *(f"{v:.1f}" for v in box), f"{score:.4f}", int(class_id)])
+            writer.writerow(csv_row(video, frame, box, score, class_id))
     return out.getvalue()
-
-
-def read_detections_csv(path: Path) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-    """(video, frame) -> (boxes (N,4), scores (N,)) from a ``run`` CSV."""
-    if not path.is_file():
-        raise DataError(f"detections file {path} not found: write one with './vessel detect run'")
-    grouped: dict[tuple[int, int], list[list[float]]] = {}
-    with path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
-        missing = [c for c in CSV_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise DataError(f"{path} lacks column(s) {', '.join(missing)}; expected {','.join(CSV_COLUMNS)}")
-        for line, row in enumerate(reader, start=2):
-            try:
-                key = (int(row["video"]), int(row["frame"]))
-                values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
-            except (TypeError, ValueError):
-                raise DataError(f"{path}, line {line}: not numbers: {row}") from None
-            grouped.setdefault(key, []).append(values)
-    return {k: (np.asarray(v)[:, :4], np.asarray(v)[:, 4]) for k, v in grouped.items()}
 
 
 # ---------------------------------------------------------------------------------------------------- run

@@ -201,12 +201,13 @@ def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COM
 
 def write_detections_csv(path: Path, frames) -> None:
     """The detector CSV layout (``video,frame,x1,y1,x2,y2,score,class_id``; class_id 8 = COCO boat)."""
+    from vessel_detect.detections_csv import CSV_COLUMNS, csv_row
     from vessel_track.pipeline import _atomic_lines
 
-    lines = ["video,frame,x1,y1,x2,y2,score,class_id"]
+    lines = [",".join(CSV_COLUMNS)]
     for f in frames:
         for box, score in zip(f.boxes, f.scores, strict=True):
-            lines.append(f"{f.video},{f.frame},{box[0]:.1f},{box[1]:.1f},{box[2]:.1f},{box[3]:.1f},{score:.4f},8")
+            lines.append(",".join(csv_row(f.video, f.frame, box, score)))
     _atomic_lines(Path(path), lines)
 
 

@@ -27,7 +27,6 @@ Each video is a separate run (its own tracker), as each is a separate recording.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import math
 import sys
@@ -133,36 +132,20 @@ def label_detections(dataset, videos) -> list[DetectionFrame]:
     return frames
 
 
-DETECTION_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score")
-
-
 def csv_detections(path: Path, dataset, videos) -> list[DetectionFrame]:
     """Detector output CSV -> frames; every frames.csv frame of ``videos`` is a frame (empty if no rows).
 
     A row for a frame not in frames.csv is timed by linear interpolation of frame numbers within its video.
     Rows with non-numeric values raise DataError naming the row.
     """
+    from vessel_detect.detections_csv import read_detections_csv
+
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such detections file; write one with `python -m vessel_detect.detect_cli "
-                        f"run ... --out FILE.csv` or use --detections labels")
+    grouped = read_detections_csv(path, "write one with `./vessel detect run ... --out FILE.csv` or use "
+                                        "--detections labels")
     wanted = None if videos is None else set(videos)
-    rows: dict[tuple[int, int], list] = defaultdict(list)
-    with path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
-        missing = [c for c in DETECTION_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise DataError(f"{path}: missing column(s) {', '.join(missing)}; expected "
-                            f"video,frame,x1,y1,x2,y2,score,class_id")
-        for number, row in enumerate(reader, start=2):
-            try:
-                video, frame = int(row["video"]), int(row["frame"])
-                values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
-            except (TypeError, ValueError):
-                raise DataError(f"{path}, row {number}: video/frame/x1..y2/score must be numbers") from None
-            if wanted is not None and video not in wanted:
-                continue
-            rows[(video, frame)].append(values)
+    rows = {key: np.column_stack([boxes, scores]) for key, (boxes, scores) in grouped.items()
+            if wanted is None or key[0] in wanted}
     frame_records = dataset.frames(videos)
     stamps = {(f.video, f.frame): f.stamp for f in frame_records}
     keys = set(stamps) | set(rows)
@@ -183,7 +166,7 @@ def csv_detections(path: Path, dataset, videos) -> list[DetectionFrame]:
                 f0, t0 = known[0] if frame < known[0][0] else known[-2]
                 f1, t1 = known[1] if frame < known[0][0] else known[-1]
                 stamp = t0 + (frame - f0) * (t1 - t0) / (f1 - f0)
-        values = np.array(rows.get((video, frame), []), dtype=float).reshape(-1, 5)
+        values = np.asarray(rows.get((video, frame), np.zeros((0, 5))), dtype=float).reshape(-1, 5)
         frames.append(DetectionFrame(video, frame, stamp, values[:, :4], values[:, 4]))
     return frames
 

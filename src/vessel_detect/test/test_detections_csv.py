@@ -1,0 +1,37 @@
+"""The detector-run CSV: what ``detect run`` writes, every reader reads back; bad files name the problem."""
+import numpy as np
+import pytest
+
+from vessel_calib.errors import DataError
+from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
+
+
+def _write(path, rows):
+    path.write_text("\n".join([",".join(CSV_COLUMNS)] + [",".join(r) for r in rows]) + "\n")
+    return path
+
+
+def test_rows_round_trip_grouped_by_frame(tmp_path):
+    path = _write(tmp_path / "run.csv", [csv_row(13, 0, [10.04, 20.0, 30.0, 40.0], 0.98765),
+                                         csv_row(13, 0, [1, 2, 3, 4], 0.5, class_id=2),
+                                         csv_row(14, 100, [5, 6, 7, 8], 0.25)])
+    grouped = read_detections_csv(path)
+    assert sorted(grouped) == [(13, 0), (14, 100)]
+    boxes, scores = grouped[(13, 0)]
+    np.testing.assert_allclose(boxes, [[10.0, 20.0, 30.0, 40.0], [1, 2, 3, 4]])
+    np.testing.assert_allclose(scores, [0.9877, 0.5])
+    assert csv_row(1, 2, [1, 2, 3, 4], 0.5)[-1] == "8"     # COCO boat unless told
+
+
+def test_bad_files_name_the_file_the_row_and_the_fix(tmp_path):
+    with pytest.raises(DataError, match="not found: write one with './vessel detect run'"):
+        read_detections_csv(tmp_path / "absent.csv")
+    with pytest.raises(DataError, match="or use --detections labels"):
+        read_detections_csv(tmp_path / "absent.csv", "or use --detections labels")
+    bad = _write(tmp_path / "bad.csv", [csv_row(13, 0, [1, 2, 3, 4], 0.5), ["13", "1", "x", "2", "3", "4", "0.5", "8"]])
+    with pytest.raises(DataError, match=r"bad.csv, row 3: .* must be numbers"):
+        read_detections_csv(bad)
+    short = tmp_path / "short.csv"
+    short.write_text("video,frame,x1,y1,x2,y2\n13,0,1,2,3,4\n")
+    with pytest.raises(DataError, match="lacks column"):
+        read_detections_csv(short)

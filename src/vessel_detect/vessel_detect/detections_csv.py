@@ -1,0 +1,47 @@
+"""The detector-run CSV (``video,frame,x1,y1,x2,y2,score,class_id``): one writer and one reader for every tool.
+
+``./vessel detect run`` writes it, ``vessel_track.appearance score`` rewrites it with the cue's probabilities,
+and ``vessel_track.pipeline``, ``./vessel demo --detections`` and ``detect eval`` read it. Kept free of OpenCV
+and onnxruntime so the ROS-free tracking tools can read it cheaply.
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from vessel_calib.errors import DataError
+
+CSV_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score", "class_id")
+#: COCO's "boat", the class written when a tool does not know it.
+COCO_BOAT = 8
+
+
+def csv_row(video: int, frame: int, box, score: float, class_id: int = COCO_BOAT) -> list[str]:
+    """One row: pixel coordinates to 0.1 px, the score to 4 decimals."""
+    return [str(int(video)), str(int(frame)), *(f"{float(v):.1f}" for v in box), f"{float(score):.4f}",
+            str(int(class_id))]
+
+
+def read_detections_csv(path: Path, missing_hint: str = "write one with './vessel detect run'"
+                        ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """(video, frame) -> (boxes (N, 4), scores (N,)); DataError naming the file, and the row, for bad input."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"detections file {path} not found: {missing_hint}")
+    grouped: dict[tuple[int, int], list[list[float]]] = {}
+    with path.open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        missing = [c for c in CSV_COLUMNS[:7] if c not in (reader.fieldnames or [])]
+        if missing:
+            raise DataError(f"{path} lacks column(s) {', '.join(missing)}; expected {','.join(CSV_COLUMNS)}")
+        for line, row in enumerate(reader, start=2):
+            try:
+                key = (int(row["video"]), int(row["frame"]))
+                values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
+            except (TypeError, ValueError):
+                raise DataError(f"{path}, row {line}: video, frame, x1..y2 and score must be numbers, got "
+                                f"{row}") from None
+            grouped.setdefault(key, []).append(values)
+    return {k: (np.asarray(v)[:, :4], np.asarray(v)[:, 4]) for k, v in grouped.items()}
