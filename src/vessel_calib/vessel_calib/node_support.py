@@ -148,6 +148,20 @@ def declare_camera_model(node: Node, prefix: str = "camera"):
     return CameraModel.from_params(values)
 
 
+#: Diagnostics key prefix of ``NodeHealth.watch_subscribers``: ``matched_subscribers./vessel/tracks`` = "3".
+MATCHED_SUBSCRIBERS = "matched_subscribers."
+
+
+def matched_subscribers(array) -> dict[str, int]:
+    """Subscriptions matched by each topic's publisher, from a ``DiagnosticArray`` of ``NodeHealth`` nodes."""
+    found: dict[str, int] = {}
+    for status in array.status:
+        for item in status.values:
+            if item.key.startswith(MATCHED_SUBSCRIBERS) and item.value.isdigit():
+                found[item.key[len(MATCHED_SUBSCRIBERS):]] = int(item.value)
+    return found
+
+
 class NodeHealth:
     """Counts a node's problems, logs each kind once, and publishes them on ``/diagnostics``.
 
@@ -165,8 +179,18 @@ class NodeHealth:
         self._status_level = DiagnosticStatus.OK
         self._status_message = "running"
         self._lock = threading.Lock()
+        self._watched: list = []
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish)
+
+    def watch_subscribers(self, *publishers) -> None:
+        """Report how many subscriptions each publisher has matched (``matched_subscribers.<topic>``).
+
+        Seen from the publisher's own side: a subscriber that other nodes already see may not be matched to this
+        publisher yet, and what is published before the match is lost (reliable QoS covers matched readers only).
+        A supervisor (``./vessel demo``) waits on these before it starts the source.
+        """
+        self._watched.extend(p for p in publishers if p is not None)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -219,6 +243,7 @@ class NodeHealth:
             message = f"{message}; problems: " + ", ".join(f"{k}={v}" for k, v in counts if k in problem_kinds)
         status.level = level
         status.message = message
+        values += [(f"{MATCHED_SUBSCRIBERS}{p.topic_name}", str(p.get_subscription_count())) for p in self._watched]
         status.values = [KeyValue(key=k, value=v) for k, v in values]
         status.values += [KeyValue(key=f"count.{k}", value=str(v)) for k, v in counts]
         array = DiagnosticArray()

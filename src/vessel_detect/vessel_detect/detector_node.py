@@ -116,6 +116,7 @@ class DetectorNode(Node):
         self.detections_pub = self.create_publisher(
             Detection2DArray, values["detections_topic"], reliable_qos(int(values["detections_qos_depth"]))
         )
+        self.health.watch_subscribers(self.detections_pub)
         self.annotated_pub = None
         if values["publish_annotated"]:
             self.annotated_pub = self.create_publisher(Image, values["annotated_topic"], SENSOR_DATA_QOS)

@@ -96,6 +96,7 @@ class ReplayDetectorNode(Node):
         self._stamps = sorted(self._rows)
         self._health = NodeHealth(self)
         self._publisher = self.create_publisher(Detection2DArray, output_topic, reliable_qos(10))
+        self._health.watch_subscribers(self._publisher)
         self._health.set_value("stamps_in_csv", len(self._stamps))
         self.finished = False
         if self._pace == "images":

@@ -103,9 +103,10 @@ def screen_tracks(camera, stamp, k, stamp_msg):
 
 
 def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
-    from vessel_calib.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
+    from vessel_calib.node_support import matched_subscribers, reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import VesselTrackArray
     from vessel_track.simulation import challenge_camera
 
@@ -123,6 +124,9 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
     node.create_subscription(NavSatFix, "/vessel/fix", fixes.append, reliable_qos(50))
     node.create_subscription(VesselTrackArray, "/vessel/fixes", arrays.append, reliable_qos(50))
     publisher = node.create_publisher(VesselTrackArray, "/vessel/tracks/screen", reliable_qos(50))
+    matched: dict[str, int] = {}
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda array: matched.update(matched_subscribers(array)), reliable_qos(50))
     camera = challenge_camera()
 
     def spin_until(predicate, timeout):
@@ -138,6 +142,9 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
                           and node.count_publishers("/vessel/fix") > 0
                           and node.count_subscribers("/vessel/tracks") > 0
                           and node.count_publishers("/vessel/tracks") > 0, 60.0), "nodes did not come up"
+        # Each node reports, from its publishers' side, whom they have matched (what ./vessel demo waits on).
+        assert spin_until(lambda: matched.get("/vessel/tracks", 0) >= 1 and matched.get("/vessel/fix", 0) >= 1
+                          and matched.get("/vessel/fixes", 0) >= 1, 30.0), f"matched subscribers: {matched}"
         t0 = 1601496000.0
         sent = []
         for k in range(14):

@@ -450,6 +450,7 @@ class BenchWatcher:
         self.log = ArrivalLog(CHAIN)
         self.fixes_with_position = 0
         self.diagnostics: dict[str, dict[str, str]] = {}
+        self.matched: dict[str, int] = {}   # topic -> subscriptions its publisher has matched (its /diagnostics)
         # Serialised messages (raw=True): the watcher reads only the header stamp, so a 200 kB image costs it
         # no deserialisation while the graph runs.
         self.subscriptions = {
@@ -481,6 +482,9 @@ class BenchWatcher:
             self.fixes_with_position += 1
 
     def _on_diagnostics(self, array) -> None:
+        from vessel_calib.node_support import matched_subscribers
+
+        self.matched.update(matched_subscribers(array))
         for status in array.status:
             values = {kv.key: kv.value for kv in status.values}
             values["_message"] = status.message
@@ -502,6 +506,8 @@ class BenchWatcher:
             count(TRACKS_TOPIC) >= 2,  # gps_publisher + watcher
         ]
         links += [self.subscriptions[topic].get_publisher_count() >= 1 for topic in CHAIN[1:]]
+        # ... and matched from the publishers' side (what they report on /diagnostics), so no frame is lost.
+        links += [self.matched.get(topic, 0) >= 2 for topic in (DETECTIONS_TOPIC, SCREEN_TOPIC, TRACKS_TOPIC)]
         return all(links)
 
     def close(self) -> None:

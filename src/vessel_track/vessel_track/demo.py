@@ -154,6 +154,7 @@ class GraphWatcher:
 
     def __init__(self):
         import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.context import Context
 
         from vessel_calib.node_support import reliable_qos
@@ -166,10 +167,17 @@ class GraphWatcher:
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.tracks_received = 0
+        self.matched: dict[str, int] = {}   # topic -> subscriptions its publisher has matched (its /diagnostics)
         self.node.create_subscription(VesselTrackArray, "/vessel/tracks", self._on_tracks, reliable_qos(100))
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable_qos(50))
 
     def _on_tracks(self, _message) -> None:
         self.tracks_received += 1
+
+    def _on_diagnostics(self, message) -> None:
+        from vessel_calib.node_support import matched_subscribers
+
+        self.matched.update(matched_subscribers(message))
 
     def spin(self, seconds: float) -> None:
         """Process callbacks for a while."""
@@ -178,16 +186,18 @@ class GraphWatcher:
             self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
     def connected(self, with_camera: bool = True, with_recorder: bool = True) -> bool:
-        """Every link from the detector to the recorder is matched (so no frame is lost at the start)."""
-        count = self.node.count_subscribers
-        links = [
-            count("/camera/image_raw/compressed") >= 1 or not with_camera,
-            count("/vessel/detections") >= 1 + with_recorder,
-            count("/vessel/tracks/screen") >= 1 + with_recorder,
-            count("/vessel/tracks") >= 2 + with_recorder,
-        ]
+        """Every link from the detector to the recorder is matched (so no frame is lost at the start).
+
+        Seen from each publisher's own side (the ``matched_subscribers`` its node reports on ``/diagnostics``):
+        that this watcher sees a subscriber does not mean the publisher has matched it yet, and a frame published
+        before then is lost.
+        """
+        wanted = {"/vessel/detections": 1 + with_recorder, "/vessel/tracks/screen": 1 + with_recorder,
+                  "/vessel/tracks": 2 + with_recorder}
         if with_recorder:
-            links.append(count("/vessel/fix") >= 1)
+            wanted["/vessel/fix"] = 1
+        links = [self.node.count_subscribers("/camera/image_raw/compressed") >= 1 or not with_camera]
+        links += [self.matched.get(topic, 0) >= n for topic, n in wanted.items()]
         return all(links)
 
     def close(self) -> None:

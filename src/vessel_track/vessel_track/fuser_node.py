@@ -112,6 +112,7 @@ class FuserNode(Node):
         self.health = NodeHealth(self)
         self._reported_counts: dict[str, int] = {}
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
+        self.health.watch_subscribers(self.publisher)
         self.subscription = self.create_subscription(VesselTrackArray, input_topic, self.on_tracks,
                                                      reliable_qos(depth))
         self.get_logger().info(

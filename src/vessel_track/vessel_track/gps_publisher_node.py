@@ -135,6 +135,7 @@ class GpsPublisherNode(Node):
         self.fix_publisher = self.create_publisher(NavSatFix, fix_topic, reliable_qos(depth))
         self.fixes_publisher = (self.create_publisher(VesselTrackArray, fixes_topic, reliable_qos(depth))
                                 if fixes_topic else None)
+        self.health.watch_subscribers(self.fix_publisher, self.fixes_publisher)
         self.subscription = self.create_subscription(VesselTrackArray, input_topic, self.on_tracks,
                                                      reliable_qos(depth))
         self.get_logger().info(f"gps_publisher: {input_topic} -> {fix_topic} (frame_id {self.frame_id!r}), "

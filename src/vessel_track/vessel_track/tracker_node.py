@@ -194,6 +194,7 @@ class TrackerNode(Node):
         self.health = NodeHealth(self)
         self._reported = TrackerCounters()
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
+        self.health.watch_subscribers(self.publisher)
         self.subscription = self.create_subscription(Detection2DArray, input_topic, self.on_detections,
                                                      reliable_qos(depth))
         self.get_logger().info(
