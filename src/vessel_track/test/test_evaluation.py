@@ -75,7 +75,16 @@ def test_metrics_match_the_definitions():
     assert m["m_per_100m"] == pytest.approx(100 * np.sum(e * d) / np.sum(d * d))
     assert m["median_m"] == pytest.approx(3.0)
     assert m["p80_pct"] == pytest.approx(np.percentile(100 * e / d, 80))
+    assert m["range_bias_pct"] is None          # not without the estimates' ranges
     assert metrics([], [])["n"] == 0
+
+
+def test_range_bias_says_which_way_the_ranges_are_off():
+    d = np.array([100.0, 50.0, 400.0])
+    too_close = metrics(0.05 * d, d, 0.95 * d)
+    assert too_close["range_bias_pct"] == pytest.approx(-5.0)
+    assert metrics(0.05 * d, d, 1.05 * d)["range_bias_pct"] == pytest.approx(5.0)
+    assert metrics([], [], [])["range_bias_pct"] is None
 
 
 def test_scoring_a_known_offset(tmp_path, capsys):
@@ -91,6 +100,8 @@ def test_scoring_a_known_offset(tmp_path, capsys):
     overall = summary["overall"]
     assert overall["median_m"] == pytest.approx(5.0, abs=0.01)
     assert overall["p80_m"] == pytest.approx(5.0, abs=0.01)
+    assert overall["range_bias_pct"] is not None and abs(overall["range_bias_pct"]) <= 100 * 5.0 / 150.0 + 0.01
+    assert "range bias" in printed
     # Frames at 16 s and 20 s of video 13 fall in the GPS gap: not scored and not in view.
     v13 = summary["per_video"]["13"]
     assert v13["n"] == 8 and v13["n_no_truth"] == 2 and v13["frames_in_view"] == 8

@@ -101,16 +101,26 @@ def read_predictions(path: Path) -> Predictions:
     return Predictions(v[order], t[order], np.asarray(lats)[order], np.asarray(lons)[order], skipped)
 
 
-def metrics(error_m, distance_m) -> dict:
-    """The paper's figures for paired errors and distances (finite pairs with d > 0 only)."""
+def metrics(error_m, distance_m, predicted_distance_m=None) -> dict:
+    """The paper's figures for paired errors and distances (finite pairs with d > 0 only).
+
+    With ``predicted_distance_m`` (the estimate's range from the camera) also ``range_bias_pct``: the mean of
+    ``100 (predicted - true range) / true range``, negative when the estimates sit too close to the camera. A
+    calibration off in scale shows here at every distance, where the error alone does not say which way it is.
+    """
     e = np.asarray(error_m, dtype=float).reshape(-1)
     d = np.asarray(distance_m, dtype=float).reshape(-1)
+    p = np.full(d.shape, np.nan) if predicted_distance_m is None else \
+        np.asarray(predicted_distance_m, dtype=float).reshape(-1)
     ok = np.isfinite(e) & np.isfinite(d) & (d > 0)
-    e, d = e[ok], d[ok]
+    e, d, p = e[ok], d[ok], p[ok]
     if e.size == 0:
         return {"n": 0, "m_per_100m": None, "median_m": None, "p80_m": None, "p80_pct": None, "mean_m": None,
-                "rmse_m": None, "max_m": None, "share_under_20m": None, "distance_median_m": None}
+                "rmse_m": None, "max_m": None, "share_under_20m": None, "distance_median_m": None,
+                "range_bias_pct": None}
+    bias = 100.0 * (p - d) / d
     return {
+        "range_bias_pct": float(np.mean(bias)) if np.all(np.isfinite(bias)) else None,
         "n": int(e.size),
         "m_per_100m": float(100.0 * np.sum(e * d) / np.sum(d * d)),
         "median_m": float(np.median(e)),
@@ -137,6 +147,7 @@ class ScoredPredictions:
     error_m: np.ndarray
     distance_m: np.ndarray
     has_truth: np.ndarray
+    predicted_distance_m: np.ndarray | None = None   # the estimate's range from the camera
 
 
 def _epoch_of(dataset, video: int, t_utc_s):
@@ -172,8 +183,10 @@ def score_predictions(predictions: Predictions, dataset, gps_track, max_gps_gap_
                                                gt_lat[has_truth], gt_lon[has_truth])
         distance[has_truth] = geodesy.haversine_m(gt_lat[has_truth], gt_lon[has_truth], dataset.camera_lat,
                                                   dataset.camera_lon)
+    predicted_distance = np.asarray(geodesy.haversine_m(predictions.lat, predictions.lon, dataset.camera_lat,
+                                                        dataset.camera_lon), dtype=float).reshape(-1)
     return ScoredPredictions(predictions.video, predictions.t_utc_s, predictions.lat, predictions.lon, gt_lat, gt_lon,
-                             error, distance, has_truth)
+                             error, distance, has_truth, predicted_distance)
 
 
 def coverage_frames(dataset, camera, gps_track, videos, which: str = "frames", max_gps_gap_s: float = 3.0):
@@ -223,7 +236,9 @@ def summarize(scored: ScoredPredictions, cover: dict, videos: list[int]) -> dict
 
     def block(selected_videos) -> dict:
         sel = np.isin(scored.video, list(selected_videos))
-        result = metrics(scored.error_m[sel & scored.has_truth], scored.distance_m[sel & scored.has_truth])
+        keep = sel & scored.has_truth
+        predicted = None if scored.predicted_distance_m is None else scored.predicted_distance_m[keep]
+        result = metrics(scored.error_m[keep], scored.distance_m[keep], predicted)
         result["n_predictions"] = int(sel.sum())
         result["n_no_truth"] = int((sel & ~scored.has_truth).sum())
         in_view = sum(cover.get(v, (0, 0))[0] for v in selected_videos)
@@ -262,6 +277,11 @@ def format_table(summary: dict) -> str:
     for name, b in summary["splits"].items():
         row(name, b)
     lines.append(f"(m/100m: least squares through the origin, the paper reports {PAPER_M_PER_100M}; errors in m)")
+    biases = [(name, b.get("range_bias_pct")) for name, b in [("overall", summary["overall"]),
+                                                               *summary["splits"].items()]]
+    biases = [f"{name} {value:+.1f} %" for name, value in biases if value is not None]
+    if biases:
+        lines.append("range bias (mean of estimated/true range - 1; negative: too close): " + ", ".join(biases))
     return "\n".join(lines)
 
 
