@@ -1,5 +1,6 @@
 """The ROS-free chain end to end: simulation (known truth) and, when present, the challenge labels."""
 import csv
+import json
 import math
 
 import numpy as np
@@ -172,6 +173,9 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
             tracks = list(csv.DictReader(handle))
         assert {t["track_id"] for t in tracks if t["is_target"] == "1"}
         assert (out / "summary.json").is_file()
+        counts = json.loads((out / "counts.json").read_text())
+        assert set(counts) == {"13", "14"} and counts["13"]["tracker.frames"] > 0
+        assert "selection.identity_changes" in counts["13"]
     assert "m/100m" in capsys.readouterr().out
     assert pl.main(["--data", str(data), "--detections", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
     assert capsys.readouterr().err.startswith("error: ")

@@ -4,7 +4,9 @@
         [--mode online|offline] [--calib FILE.yaml] [--params FILE.yaml] [--appearance MODEL.npz] [--no-eval]
 
 writes ``predictions.csv`` (``video,t_utc_s,lat,lon``: the vessel of interest), ``tracks.csv`` (every track,
-every frame) and then scores them (``vessel_track.evaluation``: ``summary.json``, ``scores.csv``, plots).
+every frame), ``counts.json`` (per video: the tracker's, fuser's and selection's counters: joins, switches,
+identity changes, outliers, rejected boxes) and then scores them (``vessel_track.evaluation``: ``summary.json``,
+``scores.csv``, plots).
 
 Detections: ``labels`` = the hand-labelled boxes of the vessel of interest (primary pass, score 1.0), one
 frame per labelled frame; ``FILE.csv`` = the detector's output, columns ``video,frame,x1,y1,x2,y2,score,class_id``
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import sys
 from collections import defaultdict
@@ -527,6 +530,8 @@ def main(argv: list[str] | None = None) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         write_predictions_csv(args.out / "predictions.csv", results)
         write_tracks_csv(args.out / "tracks.csv", results)
+        atomic_write_text(args.out / "counts.json",
+                          json.dumps({str(r.video): r.counts for r in results}, indent=1, sort_keys=True) + "\n")
         print(f"{sum(len(r.predictions) for r in results)} predictions from {len(frames)} frames "
               f"({args.mode}, camera: {camera_source}, parameters: {params_path or 'defaults'}) -> {args.out}")
         if not args.no_eval:
