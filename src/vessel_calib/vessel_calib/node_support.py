@@ -44,12 +44,15 @@ LATCHED_QOS = QoSProfile(
 """Reliable and transient local: a late subscriber still gets the last sample (e.g. the camera's fix)."""
 
 
-def image_qos_profile(name: str) -> QoSProfile:
-    """The QoS of an image subscription named by an ``image_qos`` parameter: ``sensor_data`` or ``reliable``."""
+def image_qos_profile(name: str, reliable_depth: int = 5) -> QoSProfile:
+    """The QoS of image topics named by an ``image_qos`` parameter: ``sensor_data`` or ``reliable``.
+
+    ``reliable_depth``: the history kept when reliable (a publisher keeps more, so a slow reader can catch up).
+    """
     if name == "sensor_data":
         return SENSOR_DATA_QOS
     if name == "reliable":
-        return reliable_qos(5)
+        return reliable_qos(reliable_depth)
     raise VesselError(f"image_qos '{name}' unknown: use sensor_data or reliable")
 
 

@@ -28,9 +28,9 @@ from vessel_calib.errors import DataError, VesselError
 from vessel_calib.node_support import (
     DEFAULT_CAMERA_PARAMETERS,
     LATCHED_QOS,
-    SENSOR_DATA_QOS,
     NodeHealth,
     declare_parameter,
+    image_qos_profile,
     main_for,
     reliable_qos,
 )
@@ -93,7 +93,7 @@ class CameraNode(Node):
         self.health.set_value("source", self.source.description)
         self.health.set_value("rate", "live" if self.live else ("as consumed" if self.rate == 0 else self.rate))
 
-        image_qos = SENSOR_DATA_QOS if p["image_qos"] == "sensor_data" else reliable_qos(10)
+        image_qos = image_qos_profile(p["image_qos"], reliable_depth=10)
         self.compressed_pub = (
             self.create_publisher(CompressedImage, p["compressed_topic"], image_qos)
             if p["publish_compressed"]

@@ -24,9 +24,11 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     """Run the replay and return the figures (see the module docstring)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import CompressedImage
+
+    from vessel_calib.node_support import image_qos_profile
 
     with bag_io.BagReader(bag) as reader:
         expected = [bag_io.sec_to_ns(t) for t, _ in reader.images()]
@@ -46,9 +48,8 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
         received.append(message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec)
         arrival.append(time.monotonic())
 
-    qos = qos_profile_sensor_data if image_qos == "sensor_data" else QoSProfile(
-        depth=10, reliability=ReliabilityPolicy.RELIABLE)
-    node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, on_image, qos)
+    node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, on_image,
+                             image_qos_profile(image_qos, reliable_depth=10))
     node.create_subscription(
         Clock, "/clock", lambda m: clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
