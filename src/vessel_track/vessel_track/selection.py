@@ -124,6 +124,12 @@ class SelectionConfig:
         if self.history_length < 1:
             raise DataError(f"selection: history_length must be >= 1, got {self.history_length!r}")
 
+    def trajectory_score(self, confidences, path_m: float, consistent: int, known: int) -> float:
+        """``trajectory_score`` with this configuration (``consistent`` of ``known`` boxes size-consistent)."""
+        return trajectory_score(confidences, path_m, self.confidence_percentile,
+                                consistent if self.size_consistency else None, known, self.confidence_score,
+                                self.evidence_clip, self.path_log_floor)
+
 
 def path_length_m(positions, min_step_m: float = 0.0, covariances=None, noise_sigmas: float = 0.0) -> float:
     """Sum of the steps between consecutive positions (N, 2), skipping NaN rows and steps below min_step_m.
@@ -251,11 +257,8 @@ class Trajectory:
         """The paper's trajectory score."""
         config = config or SelectionConfig()
         known = np.isfinite(self.consistent)
-        return trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas),
-                                config.confidence_percentile,
-                                int(np.sum(self.consistent[known] > 0.5)) if config.size_consistency else None,
-                                int(known.sum()), config.confidence_score, config.evidence_clip,
-                                config.path_log_floor)
+        return config.trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas),
+                                       int(np.sum(self.consistent[known] > 0.5)), int(known.sum()))
 
     def end_velocity(self, window_s: float = 20.0) -> np.ndarray:
         """Velocity (m/s) over the last ``window_s`` seconds (least squares); zeros with one point."""
@@ -383,9 +386,7 @@ class _Running:
     known: int = 0
 
     def score(self, config: SelectionConfig) -> float:
-        return trajectory_score(np.fromiter(self.confidences, float), self.path_m, config.confidence_percentile,
-                                self.consistent if config.size_consistency else None, self.known,
-                                config.confidence_score, config.evidence_clip, config.path_log_floor)
+        return config.trajectory_score(np.fromiter(self.confidences, float), self.path_m, self.consistent, self.known)
 
 
 class OnlineTargetSelector:
