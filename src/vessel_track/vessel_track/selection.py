@@ -368,6 +368,21 @@ def select_target(trajectories: list[Trajectory], config: SelectionConfig | None
 # Online
 
 
+def _continuation_cost(cfg: SelectionConfig, last_position, velocity, gap: float, position, jump: float,
+                       jump_gap: float) -> float | None:
+    """How well ``position`` continues a track last at ``last_position`` moving at ``velocity`` ``gap`` s ago.
+
+    Mismatch with the extrapolation over the join gate (``join_gate_m + join_gate_range_frac * range +
+    join_gate_speed_mps * gap``), 0 for a perfect continuation; None outside the gate or when the ``jump`` from
+    the old track's end to the new track's start over ``jump_gap`` s would be faster than ``max_speed_mps``.
+    """
+    if jump_gap > 0 and jump / jump_gap > cfg.max_speed_mps + cfg.join_gate_m / jump_gap:
+        return None
+    mismatch = float(np.hypot(*(position - (last_position + velocity * gap))))
+    gate = cfg.join_gate_m + cfg.join_gate_range_frac * float(np.hypot(*position)) + cfg.join_gate_speed_mps * gap
+    return mismatch / gate if mismatch <= gate else None
+
+
 @dataclass
 class _Running:
     confidences: deque
@@ -441,15 +456,10 @@ class OnlineTargetSelector:
             gap = stamp - ended.last_stamp
             if not (0 <= gap <= cfg.join_max_gap_s) or ended.last_position is None:
                 continue
-            predicted = ended.last_position + ended.velocity * gap
-            mismatch = float(np.hypot(*(position - predicted)))
-            gate = (cfg.join_gate_m + cfg.join_gate_range_frac * float(np.hypot(*position))
-                    + cfg.join_gate_speed_mps * gap)
             jump = float(np.hypot(*(position - ended.last_position)))
-            if gap > 0 and jump / gap > cfg.max_speed_mps + cfg.join_gate_m / gap:
-                continue
-            if mismatch <= gate and mismatch / gate < best_cost:
-                best, best_cost = ended_id, mismatch / gate
+            cost = _continuation_cost(cfg, ended.last_position, ended.velocity, gap, position, jump, gap)
+            if cost is not None and cost < best_cost:
+                best, best_cost = ended_id, cost
         if best is None:
             return None
         inherited = self._ended.pop(best)
@@ -569,17 +579,11 @@ class OnlineTargetSelector:
             gap = stamp - current.last_stamp
             if not (0 < gap <= cfg.join_max_gap_s):
                 continue
-            predicted = current.last_position + current.velocity * gap
-            position = candidate.last_position
-            mismatch = float(np.hypot(*(position - predicted)))
-            gate = (cfg.join_gate_m + cfg.join_gate_range_frac * float(np.hypot(*position))
-                    + cfg.join_gate_speed_mps * gap)
             jump = float(np.hypot(*(candidate.first_position - current.last_position)))
-            first_gap = candidate.first_stamp - current.last_stamp
-            if jump / first_gap > cfg.max_speed_mps + cfg.join_gate_m / first_gap:
-                continue
-            if mismatch <= gate and mismatch / gate < best_cost:
-                best, best_cost = tid, mismatch / gate
+            cost = _continuation_cost(cfg, current.last_position, current.velocity, gap, candidate.last_position,
+                                      jump, candidate.first_stamp - current.last_stamp)
+            if cost is not None and cost < best_cost:
+                best, best_cost = tid, cost
         if best is None:
             return
         candidate = self._running[best]
