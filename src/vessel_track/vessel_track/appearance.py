@@ -154,10 +154,10 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
     and fuser have to beat, as the per-frame back-projection of hand boxes is for hand boxes. Frames without a
     box within ``radius_px`` give no line.
     """
-    from vessel_track.pipeline import _seconds_of_day
+    from vessel_track.pipeline import PREDICTION_HEADER, prediction_line
 
     track = dataset.gps_track()
-    lines = ["video,t_utc_s,lat,lon"]
+    lines = [PREDICTION_HEADER]
     for frame in frames:
         found = pixels_from_vessel(track, camera, frame)
         if found is None or found[0].min() > radius_px:
@@ -165,7 +165,7 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
         box = frame.boxes[int(np.argmin(found[0]))]
         lat, lon, valid = camera.screen_to_gps((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0)
         if bool(np.all(valid)):
-            lines.append(f"{frame.video},{_seconds_of_day(frame.stamp):.3f},{float(lat):.8f},{float(lon):.8f}")
+            lines.append(prediction_line(frame.video, frame.stamp, lat, lon))
     return lines
 
 

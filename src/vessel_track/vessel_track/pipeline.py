@@ -432,12 +432,19 @@ def _atomic_lines(path: Path, lines: list[str]) -> None:
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
+PREDICTION_HEADER = "video,t_utc_s,lat,lon"
+
+
+def prediction_line(video: int, stamp: float, lat: float, lon: float) -> str:
+    """One row of ``predictions.csv``: the time as UTC seconds of the day, as ``./vessel eval`` reads it."""
+    return f"{int(video)},{_seconds_of_day(stamp):.3f},{float(lat):.8f},{float(lon):.8f}"
+
+
 def write_predictions_csv(path: Path, results: list[VideoResult]) -> None:
     """``video,t_utc_s,lat,lon`` for the vessel of interest."""
-    lines = ["video,t_utc_s,lat,lon"]
+    lines = [PREDICTION_HEADER]
     for result in results:
-        for p in result.predictions:
-            lines.append(f"{p.video},{_seconds_of_day(p.stamp):.3f},{p.lat:.8f},{p.lon:.8f}")
+        lines += [prediction_line(p.video, p.stamp, p.lat, p.lon) for p in result.predictions]
     _atomic_lines(Path(path), lines)
 
 
