@@ -12,6 +12,13 @@ from pathlib import Path
 from typing import Any
 
 from vessel_calib.errors import ModelError, VesselError
+from vessel_detect.appearance_model import (
+    COMBINE_MODES,
+    DEFAULT_COMBINE,
+    DEFAULT_MIN_PROBABILITY,
+    DEFAULT_NESTED_OVERLAP,
+    AppearanceModel,
+)
 from vessel_detect.detector import (
     CHALLENGE_HORIZON_Y,
     DetectorConfig,
@@ -85,12 +92,13 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("appearance_model", "", "Appearance model of the vessel of interest (.npz from `python -m "
               "vessel_track.appearance fit`; relative paths from the working directory, then the repository): "
               "scores become its probability of the vessel of interest. '' : off.", read_only=True),
-    ParamSpec("appearance_min_probability", 0.5, "With appearance_model: boxes whose probability of being "
-              "the vessel of interest is below this are dropped.", float_range=(0.0, 1.0), read_only=True),
-    ParamSpec("appearance_combine", "replace", "With appearance_model: replace (the published score is the "
+    ParamSpec("appearance_min_probability", DEFAULT_MIN_PROBABILITY, "With appearance_model: boxes whose "
+              "probability of being the vessel of interest is below this are dropped.", float_range=(0.0, 1.0),
+              read_only=True),
+    ParamSpec("appearance_combine", DEFAULT_COMBINE, "With appearance_model: replace (the published score is the "
               "probability) or product (detector score x probability).", read_only=True),
-    ParamSpec("appearance_nested_overlap", 0.5, "With appearance_model: a box sharing more than this share of "
-              "the smaller box's area with a likelier box is dropped (one box per vessel; 0: off).",
+    ParamSpec("appearance_nested_overlap", DEFAULT_NESTED_OVERLAP, "With appearance_model: a box sharing more "
+              "than this share of the smaller box's area with a likelier box is dropped (one box per vessel; 0: off).",
               float_range=(0.0, 1.0), read_only=True),
 )
 
@@ -220,7 +228,6 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
     detector = VesselDetector(model or open_model(values), config, horizon, reference)
     if values.get("appearance_model"):
         from vessel_calib.dataset import repo_root
-        from vessel_detect.appearance_model import COMBINE_MODES, AppearanceModel
 
         path = Path(values["appearance_model"]).expanduser()
         if not path.is_absolute() and not path.is_file():
@@ -231,13 +238,13 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
                              "needs the calibration: load it with --params-file config/aitas_camera.yaml (the "
                              "camera.* parameters), or set appearance_model to ''")
         detector.appearance_camera = camera_model
-        detector.appearance_min_probability = float(values.get("appearance_min_probability", 0.5))
-        combine = str(values.get("appearance_combine", "replace"))
+        detector.appearance_min_probability = float(values.get("appearance_min_probability", DEFAULT_MIN_PROBABILITY))
+        combine = str(values.get("appearance_combine", DEFAULT_COMBINE))
         if combine not in COMBINE_MODES:
             raise VesselError(f"detector parameter 'appearance_combine' must be one of {' or '.join(COMBINE_MODES)}, "
                               f"got {combine!r}")
         detector.appearance_combine = combine
-        detector.appearance_nested_overlap = float(values.get("appearance_nested_overlap", 0.5))
+        detector.appearance_nested_overlap = float(values.get("appearance_nested_overlap", DEFAULT_NESTED_OVERLAP))
     return detector
 
 

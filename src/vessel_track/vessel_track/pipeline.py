@@ -474,6 +474,13 @@ def write_tracks_csv(path: Path, results: list[VideoResult]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Command line entry point."""
+    from vessel_detect.appearance_model import (
+        COMBINE_MODES,
+        DEFAULT_COMBINE,
+        DEFAULT_MIN_PROBABILITY,
+        DEFAULT_NESTED_OVERLAP,
+    )
+
     parser = argparse.ArgumentParser(prog="python -m vessel_track.pipeline", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default $VESSEL_DATA or "
                                                                 "../shared/aitas)")
@@ -499,11 +506,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="rescore detector output with this appearance model (vessel_track.appearance; e.g. "
                              "config/appearance_aitas.npz): the probability as score, boxes below "
                              "--appearance-min dropped")
-    parser.add_argument("--appearance-min", type=float, default=None,
-                        help="with --appearance: drop detections whose probability is below this (default 0.5)")
-    parser.add_argument("--appearance-combine", choices=("replace", "product"), default="replace",
+    parser.add_argument("--appearance-min", type=float, default=DEFAULT_MIN_PROBABILITY,
+                        help="with --appearance: drop detections whose probability is below this "
+                             "(default %(default)s)")
+    parser.add_argument("--appearance-combine", choices=COMBINE_MODES, default=DEFAULT_COMBINE,
                         help="with --appearance: the probability replaces the score, or multiplies it")
-    parser.add_argument("--appearance-nested", type=float, default=0.5,
+    parser.add_argument("--appearance-nested", type=float, default=DEFAULT_NESTED_OVERLAP,
                         help="with --appearance: drop boxes nested in a likelier one beyond this share of the "
                              "smaller box (0: off; the detector node's appearance_nested_overlap)")
     parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
@@ -525,9 +533,9 @@ def main(argv: list[str] | None = None) -> int:
                 from vessel_track import appearance
 
                 model = appearance.AppearanceModel.load(args.appearance)
-                minimum = appearance.DEFAULT_MIN_PROBABILITY if args.appearance_min is None else args.appearance_min
                 frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
-                                            args.appearance_combine, minimum, camera, args.appearance_nested)
+                                            args.appearance_combine, args.appearance_min, camera,
+                                            args.appearance_nested)
         config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
         if args.leave_one_out:
             results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config)
