@@ -275,16 +275,21 @@ def main(argv: list[str] | None = None) -> int:
             first, total = (sum(v[i] for v in shares.values()) for i in (0, 1))
             print(f"    all: vessel first in {first:>3}/{total:<3} frames ({100 * first / total:.1f} %)")
             return 0
-        distance = load_fuser_settings(args.params if args.params is not None else default_params_path())
-        model_size = distance.distance_model
-        size_model = (model_size.a, model_size.b, model_size.c, model_size.d)
+
+        def size_model() -> tuple[float, float, float, float]:
+            """(a, b, c, d) of the fuser's distance model: what a fitted model's geometry features use."""
+            fitted = load_fuser_settings(args.params if args.params is not None else default_params_path())
+            return (fitted.distance_model.a, fitted.distance_model.b, fitted.distance_model.c,
+                    fitted.distance_model.d)
+
         if args.command == "fit":
             frames = csv_detections(args.detections, dataset, videos)
-            features, labels, _ = labelled_crops(dataset, camera, videos, frames, args.features, size_model)
+            sizes = size_model()
+            features, labels, _ = labelled_crops(dataset, camera, videos, frames, args.features, sizes)
             model = fit_logistic(features, labels, args.l2,
                                  source=f"{args.detections.name} videos {args.videos}, GPS-labelled crops, "
                                         f"{args.features}, l2 {args.l2:g}",
-                                 feature_set=args.features, size_model=size_model)
+                                 feature_set=args.features, size_model=sizes)
             model.save(args.out)
             print(f"fitted on {int((labels == 1).sum())} positive / {int((labels == 0).sum())} negative crops "
                   f"-> {args.out}")
@@ -293,15 +298,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.leave_one_out:
             train = parse_videos(args.leave_one_out)
             train_frames = csv_detections(args.detections, dataset, train)
-            features, labels, video_of = labelled_crops(dataset, camera, train, train_frames, args.features,
-                                                        size_model)
+            sizes = size_model()
+            features, labels, video_of = labelled_crops(dataset, camera, train, train_frames, args.features, sizes)
             models = {}
 
             def model_for_video(video):
                 if video not in models:
                     keep = video_of != video
                     models[video] = fit_logistic(features[keep], labels[keep], args.l2,
-                                                 feature_set=args.features, size_model=size_model)
+                                                 feature_set=args.features, size_model=sizes)
                 return models[video]
         else:
             if args.model is None:

@@ -147,7 +147,7 @@ class ScoredPredictions:
     error_m: np.ndarray
     distance_m: np.ndarray
     has_truth: np.ndarray
-    predicted_distance_m: np.ndarray | None = None   # the estimate's range from the camera
+    predicted_distance_m: np.ndarray   # the estimate's range from the camera
 
 
 def _epoch_of(dataset, video: int, t_utc_s):
@@ -237,8 +237,7 @@ def summarize(scored: ScoredPredictions, cover: dict, videos: list[int]) -> dict
     def block(selected_videos) -> dict:
         sel = np.isin(scored.video, list(selected_videos))
         keep = sel & scored.has_truth
-        predicted = None if scored.predicted_distance_m is None else scored.predicted_distance_m[keep]
-        result = metrics(scored.error_m[keep], scored.distance_m[keep], predicted)
+        result = metrics(scored.error_m[keep], scored.distance_m[keep], scored.predicted_distance_m[keep])
         result["n_predictions"] = int(sel.sum())
         result["n_no_truth"] = int((sel & ~scored.has_truth).sum())
         in_view = sum(cover.get(v, (0, 0))[0] for v in selected_videos)
