@@ -308,7 +308,7 @@ def run_node(
                 print(f"warning: while shutting down: {error}", file=sys.stderr)
         if rclpy.ok():
             rclpy.try_shutdown()
-        _ignore_late_sigint()
+        _ignore_late_sigint()  # again: shutting rclpy down puts back the handler it replaced at init
     return status
 
 
