@@ -83,3 +83,19 @@ def test_a_missing_saved_detections_file_is_a_clear_error(data_dir, tmp_path):
                "--bags", str(tmp_path / "bags")]
     result = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert result.returncode == 2 and "nope.csv" in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_dir, ros_env, tmp_path):
+    """--detections labels: the self-paced replay starts once the graph after it is connected; every frame out."""
+    out = tmp_path / "demo"
+    command = [sys.executable, "-m", "vessel_track.demo", "--data", str(data_dir), "--videos", "17",
+               "--detections", "labels", "--out", str(out), "--bags", str(tmp_path / "bags")]
+    result = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    run = summary["runs"][0]
+    assert run["frames_expected"] > 0 and run["frames_out"] == run["frames_expected"], summary["runs"]
+    with (out / "predictions.csv").open() as handle:
+        assert list(csv.DictReader(handle)), "no fix published for the hand-labelled vessel"

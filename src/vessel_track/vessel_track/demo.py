@@ -185,15 +185,17 @@ class GraphWatcher:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
-    def connected(self, with_camera: bool = True, with_recorder: bool = True) -> bool:
+    def connected(self, with_camera: bool = True, with_recorder: bool = True, with_detector: bool = True) -> bool:
         """Every link from the detector to the recorder is matched (so no frame is lost at the start).
 
         Seen from each publisher's own side (the ``matched_subscribers`` its node reports on ``/diagnostics``):
         that this watcher sees a subscriber does not mean the publisher has matched it yet, and a frame published
-        before then is lost.
+        before then is lost. ``with_detector=False``: the links after the detector only (a self-paced source that
+        waits for its own readers is started once these are up).
         """
-        wanted = {"/vessel/detections": 1 + with_recorder, "/vessel/tracks/screen": 1 + with_recorder,
-                  "/vessel/tracks": 2 + with_recorder}
+        wanted = {"/vessel/tracks/screen": 1 + with_recorder, "/vessel/tracks": 2 + with_recorder}
+        if with_detector:
+            wanted["/vessel/detections"] = 1 + with_recorder
         if with_recorder:
             wanted["/vessel/fix"] = 1
         links = [self.node.count_subscribers("/camera/image_raw/compressed") >= 1 or not with_camera]
@@ -238,23 +240,22 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
         nodes = {node.name: node for node in GRAPH_NODES}
         for name in ("gps_publisher", "fuser", "tracker"):
             runner.start(nodes[name])
-        if labels:  # self-paced: it waits for the tracker and the recorder before sending anything
-            runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
-                                           "wait_for_subscribers": 2})
-        elif saved_csv is not None:
+        if saved_csv is not None:
             runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",
                                            "image_qos": "reliable"})
-        else:
+        elif not labels:
             runner.start(nodes["detector"])
         deadline = time.monotonic() + 60
-        while not watcher.connected(with_camera=not labels):
+        while not watcher.connected(with_camera=not labels, with_detector=not labels):
             watcher.spin(0.1)
             failed = runner.failed()
             if failed:
                 raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
             if time.monotonic() > deadline:
                 raise VesselError("the graph did not connect within 60 s; see the logs in " + str(log_dir))
-        if labels:
+        if labels:  # the source, self-paced: it waits for the tracker and the recorder before sending anything
+            runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
+                                           "wait_for_subscribers": 2})
             source = "detector"
         else:
             source = "camera"
