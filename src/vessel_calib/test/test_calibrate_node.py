@@ -124,6 +124,33 @@ def test_bad_input_one_line_error_and_no_file(tmp_path, capsys, case, match):
     assert not out.exists() and not (tmp_path / "out").exists()
 
 
+def test_box_corners_are_read_at_the_box_anchor_and_the_anchor_is_written(tmp_path, capsys):
+    cam = pinhole_camera()
+    screen, gps = synthetic_pairs(cam, 16, seed=24)
+    height = np.linspace(8.0, 30.0, len(screen))
+    boxes = np.column_stack([screen[:, 0] - 15, screen[:, 1] - 0.8 * height, screen[:, 0] + 15,
+                             screen[:, 1] + 0.2 * height])  # the vessel's point 0.8 of the way down each box
+    path = tmp_path / "boxes.csv"
+    rows = ["x1,y1,x2,y2,lat,lon"] + [",".join(repr(float(v)) for v in (*b, *g)) for b, g in zip(boxes, gps,
+                                                                                               strict=True)]
+    path.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "cal.yaml"
+    status, _, err = run_cli(["--pairs-csv", path, *CAM_ARGS, "--box-anchor", "0.8", "--out", out, "--no-picture"],
+                             capsys)
+    assert status == 0, err
+    model = load_camera_yaml(out)
+    assert model.box_anchor == 0.8
+    assert "box_anchor 0.8" in out.read_text()
+    assert evaluate(model, model.box_reference_points(boxes), gps).reproj_max_px < 1e-3
+
+
+def test_box_anchor_outside_the_box_is_refused(tmp_path, pairs_csv, capsys):
+    out = tmp_path / "cal.yaml"
+    status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--box-anchor", "1.5", "--out", out], capsys)
+    assert status == 2 and err.startswith("error: ") and "box_anchor" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
 def test_argparse_errors_are_one_line(capsys):
     status, _, err = run_cli(["--pairs", "many"], capsys)
     assert status == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1

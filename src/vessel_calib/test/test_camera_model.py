@@ -186,6 +186,30 @@ def test_params_round_trip_and_type_checks():
         CameraModel.from_params(bad)
 
 
+def test_box_anchor_is_part_of_the_calibration():
+    cam = paper_camera()
+    assert cam.box_anchor == 0.5
+    params = cam.to_params()
+    legacy = {k: v for k, v in params.items() if k != "box_anchor"}
+    assert CameraModel.from_params(legacy).box_anchor == 0.5  # files fitted before box_anchor: box centres
+    lower = CameraModel.from_params(dict(params, box_anchor=0.65))
+    assert lower.box_anchor == 0.65 and lower != cam
+    assert CameraModel.from_params(lower.to_params()) == lower
+    for bad in (1.5, -0.1, "0.6", float("nan"), True):
+        with pytest.raises(CalibrationError, match="box_anchor"):
+            CameraModel.from_params(dict(params, box_anchor=bad))
+
+
+def test_box_reference_points_read_the_box_at_the_anchor():
+    cam = CameraModel.from_params(dict(paper_camera().to_params(), box_anchor=0.65))
+    boxes = np.array([[100.0, 400.0, 140.0, 420.0], [0.0, 0.0, 10.0, 100.0]])
+    np.testing.assert_allclose(cam.box_reference_points(boxes), [[120.0, 413.0], [5.0, 65.0]])
+    np.testing.assert_allclose(cam.box_reference_points(boxes, 0.05), [[120.0, 414.0], [5.0, 70.0]])
+    # an offset never leaves the box
+    np.testing.assert_allclose(cam.box_reference_points(boxes, 0.9)[:, 1], [420.0, 100.0])
+    np.testing.assert_allclose(cam.box_reference_points(boxes, -0.9)[:, 1], [400.0, 0.0])
+
+
 def test_pinhole_heading_is_exact():
     for heading in (0.0, 45.0, 76.5, 200.0, 359.0):
         cam = CameraModel(pinhole_h(8.0, heading, 2.0, 1000.0, 0.0), 0.0)

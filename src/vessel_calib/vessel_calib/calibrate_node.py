@@ -4,8 +4,9 @@ Offline tool (an executable of the package so ``ros2 run vessel_calib calibrate`
 ROS graph. Inputs, one of:
 
 * ``--data DIR --videos 7-12 [--pairs 11 --seed N]``: a folder laid out like ``../shared/aitas``; pairs are the
-  primary box centres with ``gps_ok=1`` (labels of the same frame averaged); ``--label-passes all`` also
-  averages in the second labelling pass (``primary=0``) of the same frames.
+  primary boxes with ``gps_ok=1`` (labels of the same frame averaged), each read at its horizontal centre,
+  ``--box-anchor`` of the way down (default 0.65, chosen on the training videos; 0.5 is the paper's centre);
+  ``--label-passes all`` also averages in the second labelling pass (``primary=0``) of the same frames.
 * ``--pairs-csv FILE``: columns ``x,y,lat,lon`` (or ``x1,y1,x2,y2`` box corners instead of ``x,y``), or
   ``x,y,t`` with ``--gps FILE`` (CSV or GPX fixes, interpolated at ``t``; ``t`` in the same clock as the fixes:
   epoch seconds or ISO-8601), with ``--camera-lat/--camera-lon`` and ``--image-size``.
@@ -62,7 +63,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
-    from vessel_calib.calibration import LOSSES
+    from vessel_calib.calibration import DEFAULT_BOX_ANCHOR, LOSSES
 
     p = _Parser(prog="calibrate", description=__doc__.split("\n\n")[0],
                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -71,6 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--videos", help=f"videos to fit on (default {DEFAULT_TRAIN_VIDEOS})")
     src.add_argument("--pairs", type=int, help="use a random draw of this many pairs (the paper used 11)")
     src.add_argument("--seed", type=int, default=0, help="random seed of --pairs / --draws (default 0)")
+    src.add_argument("--box-anchor", type=float, default=DEFAULT_BOX_ANCHOR,
+                     help="point of a labelled box that stands for the vessel's GPS: its horizontal centre, this "
+                          f"share of the way down (0 top, 0.5 centre as in the paper, 1 bottom; default "
+                          f"{DEFAULT_BOX_ANCHOR}, see vessel_calib.calibration.DEFAULT_BOX_ANCHOR). Written to the "
+                          "file as camera.box_anchor, so the fuser reads boxes the same way")
     src.add_argument("--label-passes", choices=("primary", "all"), default="primary",
                      help="data folder: average only primary labels per frame, or all labelling passes")
     src.add_argument("--pairs-csv", help="CSV of labelled pairs: x,y,lat,lon or x,y,t (with --gps)")
@@ -217,8 +223,11 @@ def _column(fields_lower: dict[str, str], names) -> str | None:
     return next((fields_lower[n] for n in names if n in fields_lower), None)
 
 
-def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0):
-    """Labelled pairs from a CSV -> (screen (N,2), gps (N,2), dropped rows without GPS, notes)."""
+def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 0.5):
+    """Labelled pairs from a CSV -> (screen (N,2), gps (N,2), dropped rows without GPS, notes).
+
+    Box corners become the box's horizontal centre, ``anchor`` of the way down it; x,y columns are used as given.
+    """
     import numpy as np
 
     from vessel_calib.gps_track import GpsTrack, parse_time
@@ -262,7 +271,8 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0):
             x, y = num(i, xcol), num(i, ycol)
         else:
             x = 0.5 * (num(i, lower["x1"]) + num(i, lower["x2"]))
-            y = 0.5 * (num(i, lower["y1"]) + num(i, lower["y2"]))
+            y1 = num(i, lower["y1"])
+            y = y1 + anchor * (num(i, lower["y2"]) - y1)
         if use_time:
             try:
                 t = parse_time(rows[i].get(tcol, ""))
@@ -283,21 +293,6 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0):
     if track is not None and track.skipped_rows:
         notes.append(f"{track.skipped_rows} unusable GPS row(s) skipped in {gps_path}")
     return np.array(screen, dtype=float).reshape(-1, 2), np.array(gps, dtype=float).reshape(-1, 2), notes
-
-
-def dataset_pairs(ds: Dataset, videos, label_passes: str = "primary"):
-    """(screen, gps) of a data folder's labels: gps_ok=1, box centres, labels of the same frame averaged."""
-    import numpy as np
-
-    if label_passes == "primary":
-        return ds.calibration_pairs(videos)
-    groups: dict[tuple[int, int], list] = {}
-    for lab in ds.labels(videos, primary_only=False):
-        if lab.gps_ok:
-            groups.setdefault((lab.video, lab.frame), []).append(lab)
-    screen = np.array([np.mean([lab.center for lab in g], axis=0) for g in groups.values()]).reshape(-1, 2)
-    gps = np.array([(g[0].lat, g[0].lon) for g in groups.values()]).reshape(-1, 2)
-    return screen, gps
 
 
 def _picture_frame(ds: Dataset | None, videos) -> Path | None:
@@ -357,12 +352,12 @@ def run(args) -> int:
     notes: list[str] = []
     videos = None
     if args.pairs_csv:
-        screen, gps, notes = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s)
+        screen, gps, notes = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s, args.box_anchor)
         source = f"pairs {args.pairs_csv}"
         name = Path(args.pairs_csv).stem
     else:
         videos = parse_videos(args.videos or DEFAULT_TRAIN_VIDEOS)
-        screen, gps = dataset_pairs(ds, videos, args.label_passes)
+        screen, gps = ds.calibration_pairs(videos, anchor=args.box_anchor, label_passes=args.label_passes)
         source = f"{ds.path} videos {args.videos or DEFAULT_TRAIN_VIDEOS} ({args.label_passes} labels)"
         name = ds.path.name
         if len(screen) == 0:
@@ -380,7 +375,7 @@ def run(args) -> int:
         source += f", random draw of {args.pairs} (seed {args.seed})"
 
     options = _fit_options(args)
-    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options)
+    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor=args.box_anchor)
 
     print(f"calibrate: fitted on {source}: {len(screen)} of {available} pairs", flush=True)
     for note in notes:
@@ -390,17 +385,18 @@ def run(args) -> int:
     eval_pairs = None
     if ds is not None and (args.evaluate_on or args.draws):
         eval_videos = parse_videos(args.evaluate_on or DEFAULT_EVAL_VIDEOS)
-        eval_pairs = ds.calibration_pairs(eval_videos)
+        eval_pairs = ds.calibration_pairs(eval_videos, anchor=args.box_anchor)
         if len(eval_pairs[0]) == 0:
             raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {eval_videos}")
         spec = args.evaluate_on or DEFAULT_EVAL_VIDEOS
-        print("\n".join(evaluate(result.model, *eval_pairs).lines(f"evaluation on videos {spec} (box centres)")))
+        print("\n".join(evaluate(result.model, *eval_pairs).lines(
+            f"evaluation on videos {spec} (box points {args.box_anchor:g} of the way down)")))
         try:
             paper = ds.camera_model()
         except DataError:
             paper = None
         if paper is not None:
-            fig = evaluate(paper, *eval_pairs)
+            fig = evaluate(paper, *ds.calibration_pairs(eval_videos, anchor=paper.box_anchor))
             print("\n".join(fig.lines(f"paper calibration (camera.json, H[0][0] sign corrected) on videos {spec}")))
             print(f"  heading {paper.heading_deg:.2f} deg (paper: 76.5)")
         if args.draws:
@@ -430,6 +426,8 @@ def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
         f"back-projected median {f.backproj_median_m:.2f} m, p80 {f.backproj_p80_m:.2f} m",
         "H: z_p (x_p, y_p, 1) = H (x_w, y_w, 1), world metres east/north of (camera_lat, camera_lon), z_p < 0 in "
         "front; K1: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2).",
+        f"box_anchor {result.model.box_anchor:g}: H maps the point {result.model.box_anchor:g} of the way down a "
+        "vessel's box (0 top, 0.5 centre) to its GPS; the fuser reads boxes there.",
         "heading_deg, horizon_* are derived from H (informational).",
     ])
 

@@ -39,6 +39,8 @@ _UNDISTORT_MAX_ITER = 80
 #: Relative margin on z_p below which a point counts as on the horizon.
 _HORIZON_EPS = 1e-9
 
+#: The paper's box reference point: the box centre (and that of every calibration file without ``box_anchor``).
+PAPER_BOX_ANCHOR = 0.5
 PARAM_KEYS_REQUIRED = ("camera_lat", "camera_lon", "image_width", "image_height", "H", "K1", "center_x", "center_y")
 
 
@@ -60,6 +62,10 @@ class CameraModel:
         image_size: (width, height) in pixels.
         camera_lat, camera_lon: camera position (WGS-84 degrees), the origin of the world frame; needed only
             for the GPS conversions.
+        box_anchor: the point of a vessel's box that H maps to the vessel's position: its horizontal centre,
+            ``box_anchor`` of the way down the box (0 top, 0.5 centre as in the paper, 1 bottom). A property of
+            the calibration: H was fitted on that point of the labelled boxes, so every box must be read the
+            same way (``box_reference_points``).
 
     Raises:
         CalibrationError: non-finite or singular H, absurd K1, bad image size or centre, invalid position.
@@ -68,11 +74,16 @@ class CameraModel:
 
     __slots__ = (
         "_H", "_Hinv", "_K1", "_center", "_image_size", "_camera_lat", "_camera_lon",
-        "_horizon", "_r_fold", "_rs_max", "_heading",
+        "_horizon", "_r_fold", "_rs_max", "_heading", "_box_anchor",
     )
 
     def __init__(self, H, K1: float = 0.0, center=(640.0, 360.0), image_size=(1280, 720),
-                 camera_lat: float | None = None, camera_lon: float | None = None):
+                 camera_lat: float | None = None, camera_lon: float | None = None,
+                 box_anchor: float = PAPER_BOX_ANCHOR):
+        if not _is_number(box_anchor) or not 0.0 <= float(box_anchor) <= 1.0:
+            raise CalibrationError(
+                f"box_anchor must be a number in [0, 1] (0 box top, 0.5 centre, 1 bottom), got {box_anchor!r}")
+        self._box_anchor = float(box_anchor)
         try:
             H_arr = np.array(H, dtype=float).reshape(3, 3)
         except (TypeError, ValueError):
@@ -191,6 +202,21 @@ class CameraModel:
     def camera_lon(self) -> float | None:
         """Camera longitude (degrees), origin of the world frame."""
         return self._camera_lon
+
+    @property
+    def box_anchor(self) -> float:
+        """Where down a box (0 top, 0.5 centre, 1 bottom) the point lies that H maps to the vessel."""
+        return self._box_anchor
+
+    def box_reference_points(self, boxes_xyxy, anchor_offset: float = 0.0) -> np.ndarray:
+        """(N, 2) screen point of each box (x1, y1, x2, y2) that stands for the vessel: see ``box_anchor``.
+
+        ``anchor_offset`` reads the boxes that many box heights lower (boxes drawn differently from the labels
+        the calibration was fitted on); the point stays inside the box.
+        """
+        b = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+        anchor = min(max(self._box_anchor + float(anchor_offset), 0.0), 1.0)
+        return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
 
     @property
     def max_screen_radius(self) -> float:
@@ -471,6 +497,7 @@ class CameraModel:
             "K1": float(self._K1),
             "center_x": float(cx),
             "center_y": float(cy),
+            "box_anchor": float(self._box_anchor),
         })
         # Derived, informational (recomputed from H on load); NaN is left out because ROS YAML cannot hold it.
         if math.isfinite(self._heading):
@@ -486,7 +513,8 @@ class CameraModel:
     def from_params(cls, params: Mapping[str, Any], where: str = "camera") -> CameraModel:
         """Build from a ``camera:`` parameter block; CalibrationError naming the key for missing/mistyped values.
 
-        Derived keys (``heading_deg``, ``horizon_*``) are informational and recomputed from H.
+        Derived keys (``heading_deg``, ``horizon_*``) are informational and recomputed from H. ``box_anchor`` is
+        optional: files without it were fitted on box centres (the paper's 0.5).
         """
         if not isinstance(params, Mapping):
             raise CalibrationError(
@@ -527,19 +555,21 @@ class CameraModel:
                 image_size=(integer("image_width"), integer("image_height")),
                 camera_lat=number("camera_lat"),
                 camera_lon=number("camera_lon"),
+                box_anchor=number("box_anchor") if "box_anchor" in params else PAPER_BOX_ANCHOR,
             )
         except CalibrationError as exc:
             raise CalibrationError(f"{where}: {exc}") from None
 
     def __repr__(self) -> str:
         return (f"CameraModel(H={self._H.tolist()!r}, K1={self._K1!r}, center={self._center!r}, "
-                f"image_size={self._image_size!r}, camera_lat={self._camera_lat!r}, camera_lon={self._camera_lon!r})")
+                f"image_size={self._image_size!r}, camera_lat={self._camera_lat!r}, camera_lon={self._camera_lon!r}, "
+                f"box_anchor={self._box_anchor!r})")
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, CameraModel):
             return NotImplemented
         return (np.array_equal(self._H, other._H) and self._K1 == other._K1 and self._center == other._center
                 and self._image_size == other._image_size and self._camera_lat == other._camera_lat
-                and self._camera_lon == other._camera_lon)
+                and self._camera_lon == other._camera_lon and self._box_anchor == other._box_anchor)
 
     __hash__ = None  # type: ignore[assignment]

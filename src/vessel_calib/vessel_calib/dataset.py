@@ -20,13 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.camera_model import CameraModel
+from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel
 from vessel_calib.errors import CalibrationError, DataError
 from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
 
 DEFAULT_CALIBRATION = "paper_corrected_H00_negative"
 TRAIN_VIDEOS = (7, 8, 9, 10, 11, 12)
 VALIDATION_VIDEOS = (13, 14, 15, 16, 17)
+#: Which labelling passes make the calibration pairs: the primary labels, or also the second pass.
+LABEL_PASSES = ("primary", "all")
 
 
 def repo_root() -> Path:
@@ -114,6 +116,10 @@ class LabelRecord:
     def center(self) -> tuple[float, float]:
         """Box centre (x, y) in pixels."""
         return (0.5 * (self.x1 + self.x2), 0.5 * (self.y1 + self.y2))
+
+    def reference_point(self, anchor: float) -> tuple[float, float]:
+        """(x, y): the box's horizontal centre, ``anchor`` of the way down it (0 top, 0.5 centre, 1 bottom)."""
+        return (0.5 * (self.x1 + self.x2), self.y1 + anchor * (self.y2 - self.y1))
 
 
 @dataclass(frozen=True)
@@ -336,19 +342,24 @@ class Dataset:
                                    primary, row.get("paper_split", "").strip()))
         return out
 
-    def calibration_pairs(self, videos=None, merge_same_frame: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """(screen (N,2) box centres, gps (N,2) lat/lon) of primary labels with gps_ok=1 in ``videos``.
+    def calibration_pairs(self, videos=None, merge_same_frame: bool = True, anchor: float = PAPER_BOX_ANCHOR,
+                          label_passes: str = "primary") -> tuple[np.ndarray, np.ndarray]:
+        """(screen (N,2) box reference points, gps (N,2) lat/lon) of labels with gps_ok=1 in ``videos``.
 
-        Some frames carry two primary labels (from two labelling sources): with ``merge_same_frame`` their
-        centres are averaged into one pair, so one instant counts once and the fit sees no duplicate GPS point.
+        The reference point is the box's horizontal centre, ``anchor`` of the way down it (0.5: the centre).
+        Some frames carry two primary labels (from two labelling sources), and ``label_passes="all"`` adds the
+        second labelling pass of the same frames: with ``merge_same_frame`` the labels of a frame are averaged
+        into one pair, so one instant counts once and the fit sees no duplicate GPS point.
         """
-        labels = [lab for lab in self.labels(videos, primary_only=True) if lab.gps_ok]
+        if label_passes not in LABEL_PASSES:
+            raise DataError(f"label passes must be one of {', '.join(LABEL_PASSES)}, got {label_passes!r}")
+        labels = [lab for lab in self.labels(videos, primary_only=label_passes == "primary") if lab.gps_ok]
         groups: dict[tuple[int, int], list[LabelRecord]] = {}
         for lab in labels:
             key = (lab.video, lab.frame) if merge_same_frame else (lab.video, id(lab))
             groups.setdefault(key, []).append(lab)
-        screen = np.array([np.mean([lab.center for lab in group], axis=0) for group in groups.values()],
-                          dtype=float).reshape(-1, 2)
+        screen = np.array([np.mean([lab.reference_point(anchor) for lab in group], axis=0)
+                           for group in groups.values()], dtype=float).reshape(-1, 2)
         gps = np.array([(group[0].lat, group[0].lon) for group in groups.values()], dtype=float).reshape(-1, 2)
         return screen, gps
 

@@ -118,6 +118,8 @@ CAMERA_PARAMETER_DESCRIPTIONS: dict[str, str] = {
     "center_x": "Distortion centre x, pixels.",
     "center_y": "Distortion centre y, pixels.",
     "heading_deg": "Camera heading implied by H, degrees from north (informational; checked against H).",
+    "box_anchor": "Point of a vessel's box that H maps to its position: horizontal centre, this share of the way "
+                  "down (0 top, 0.5 centre as in the paper, 1 bottom); written by calibrate.",
 }
 
 
@@ -131,6 +133,7 @@ DEFAULT_CAMERA_PARAMETERS: dict[str, Any] = {
     "center_x": 640.0,
     "center_y": 360.0,
     "heading_deg": 76.475,
+    "box_anchor": 0.5,
 }
 """The challenge camera, the paper's calibration with its sign typo corrected (see aitas/camera.json)."""
 

@@ -109,7 +109,8 @@ def geometry_features(camera, size_model, boxes_xyxy, scores) -> np.ndarray:
     """(N, 12) box geometry in the calibration's pixels: has the box the vessel's size where it sits.
 
     ``size_model`` = (a, b, c, d) of the box-size distance model (width = a/depth + b, height = c/depth + d).
-    The depth comes from the box centre through the calibration (on or above the horizon: ``FAR_DEPTH_M``).
+    The depth comes from the box's reference point (``camera.box_reference_points``) through the calibration
+    (on or above the horizon: ``FAR_DEPTH_M``).
     Numbers: log of width and height over the expected ones, log aspect, log of the pixels from the horizon down
     to the centre, log detector score, log depth, position valid, and the squares of the first four and the
     product of the first two (a logistic regression can then prefer sizes near the expected ones).
@@ -121,7 +122,8 @@ def geometry_features(camera, size_model, boxes_xyxy, scores) -> np.ndarray:
     w = np.maximum(boxes[:, 2] - boxes[:, 0], 1.0)
     h = np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        xw, yw, valid = camera.screen_to_world(cx, cy)
+        ref = camera.box_reference_points(boxes)
+        xw, yw, valid = camera.screen_to_world(ref[:, 0], ref[:, 1])
         depth = np.where(valid, camera.depth_m(np.nan_to_num(xw), np.nan_to_num(yw)), FAR_DEPTH_M)
         depth = np.clip(np.nan_to_num(depth, nan=FAR_DEPTH_M), NEAR_DEPTH_M, FAR_DEPTH_M)
         width_ratio = np.log(w / np.maximum(a / depth + b, 2.0))

@@ -4,8 +4,10 @@ import math
 import numpy as np
 import pytest
 
+from vessel_calib.camera_model import CameraModel
 from vessel_calib.errors import DataError
 from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
+from vessel_track.fuser_settings import FuserSettings
 from vessel_track.fusion import (
     REASON_ABOVE_HORIZON,
     REASON_BEYOND_RANGE,
@@ -154,8 +156,35 @@ def test_cue_statistics_validation():
         CueStatistics(covariance=-np.eye(3))
     with pytest.raises(DataError):
         FusionConfig(weights_mode="magic")
-    with pytest.raises(DataError):
-        FusionConfig(anchor=2.0)
+    for offset in (2.0, -1.5, float("nan")):
+        with pytest.raises(DataError, match="anchor_offset"):
+            FusionConfig(anchor_offset=offset)
+
+
+def test_boxes_are_read_at_the_calibrations_anchor_plus_the_offset():
+    """A calibration fitted on points 0.7 of the way down maps that point of a box to the vessel."""
+    low = CameraModel.from_params(dict(challenge_camera().to_params(), box_anchor=0.7))
+    world = _world(20, seed=3)
+    xs, ys, _ = low.world_to_screen(world[:, 0], world[:, 1])
+    h = np.full(len(xs), 20.0)
+    boxes = np.column_stack([xs - 10, ys - 0.7 * h, xs + 10, ys + 0.3 * h])
+    exact = fuse_boxes(low, MODEL, boxes, FusionConfig(weights_mode="position_only"))
+    np.testing.assert_allclose(exact.world, world, rtol=1e-6)
+    # the same vessels boxed 4 px higher (a detector drawing them differently): read 0.2 box heights lower
+    shifted = boxes - np.array([0.0, 4.0, 0.0, 4.0])
+    corrected = fuse_boxes(low, MODEL, shifted, FusionConfig(weights_mode="position_only", anchor_offset=0.2))
+    np.testing.assert_allclose(corrected.world, world, rtol=1e-6)
+    uncorrected = fuse_boxes(low, MODEL, shifted, FusionConfig(weights_mode="position_only"))
+    assert not np.any(np.hypot(*(uncorrected.world - world).T) < 0.5)  # metres off, or above the horizon
+
+
+def test_a_parameter_file_with_the_old_fusion_anchor_says_where_it_went():
+    with pytest.raises(DataError, match="camera.box_anchor"):
+        FuserSettings.from_params({"fusion": {"anchor": 0.5}})
+    settings = FuserSettings.from_params({"fusion": {"anchor_offset": 0.05}})
+    assert settings.fusion.anchor_offset == 0.05
+    assert settings.for_hand_boxes().fusion.anchor_offset == 0.0
+    assert settings.for_hand_boxes().fusion.weights_mode == settings.fusion.weights_mode
 
 
 def _centre_size(box):

@@ -147,8 +147,11 @@ def top_box_share(dataset, camera, frames, radius_px: float = POSITIVE_PX) -> di
     return {video: (first, total) for video, (first, total) in sorted(out.items())}
 
 
-def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIVE_PX) -> list[str]:
+def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIVE_PX,
+                             anchor_offset: float = 0.0) -> list[str]:
     """``video,t_utc_s,lat,lon`` lines: each frame's box nearest the vessel's projected GPS, back-projected.
+
+    The box is read where the fuser reads it: the calibration's reference point plus ``anchor_offset``.
 
     A baseline without tracker, fusion or selection (and with the right box picked by the GPS): what the tracker
     and fuser have to beat, as the per-frame back-projection of hand boxes is for hand boxes. Frames without a
@@ -163,7 +166,8 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
         if found is None or found[0].min() > radius_px:
             continue
         box = frame.boxes[int(np.argmin(found[0]))]
-        lat, lon, valid = camera.screen_to_gps((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0)
+        (x, y), = camera.box_reference_points(box, anchor_offset)
+        lat, lon, valid = camera.screen_to_gps(x, y)
         if bool(np.all(valid)):
             lines.append(prediction_line(frame.video, frame.stamp, lat, lon))
     return lines
@@ -253,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
     rank.add_argument("--per-frame-out", type=Path, default=None, metavar="PREDICTIONS.csv",
                       help="also write the per-frame back-projection of the box nearest the vessel's GPS (a "
                            "baseline; score it with ./vessel eval)")
+    rank.add_argument("--params", type=Path, default=None,
+                      help="parameter YAML whose fuser fusion.anchor_offset the per-frame back-projection reads "
+                           "boxes with (default config/aitas.yaml)")
     args = parser.parse_args(argv)
     try:
         dataset = open_dataset(args.data)
@@ -263,7 +270,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.per_frame_out is not None:
                 from vessel_track.pipeline import _atomic_lines
 
-                lines = per_frame_backprojection(dataset, camera, frames, args.radius)
+                offset = load_fuser_settings(args.params or default_params_path()).fusion.anchor_offset
+                lines = per_frame_backprojection(dataset, camera, frames, args.radius, offset)
                 _atomic_lines(args.per_frame_out, lines)
                 print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
             shares = top_box_share(dataset, camera, frames, args.radius)

@@ -238,8 +238,10 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
         runner.start(RECORDER, {"output": str(recording),
                                 "topics": [f"{topic}:{msgtype}" for topic, msgtype in OUTPUT_TOPICS.items()]})
         nodes = {node.name: node for node in GRAPH_NODES}
-        for name in ("gps_publisher", "fuser", "tracker"):
-            runner.start(nodes[name])
+        runner.start(nodes["gps_publisher"])
+        # Hand-drawn boxes are read where the calibration was fitted on them (FuserSettings.for_hand_boxes).
+        runner.start(nodes["fuser"], {"fusion": {"anchor_offset": 0.0}} if labels else None)
+        runner.start(nodes["tracker"])
         if saved_csv is not None:
             runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",
                                            "image_qos": "reliable"})
@@ -342,11 +344,13 @@ def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
     return predictions_path, tracks_path
 
 
-def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Path, params_file: Path) -> Path:
+def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Path, params_file: Path,
+                               hand_boxes: bool = False) -> Path:
     """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
 
     The same tracker and fuser cores the nodes run, then the trajectory joining, scoring and smoothing over
-    the whole video that only recorded data allows (``vessel_track.pipeline``, mode ``offline``).
+    the whole video that only recorded data allows (``vessel_track.pipeline``, mode ``offline``). With
+    ``hand_boxes`` the boxes are read as the fuser node read them (``FuserSettings.for_hand_boxes``).
     """
     import numpy as np
 
@@ -356,7 +360,8 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     from vessel_track.pipeline import DetectionFrame, PipelineConfig, run_video, write_predictions_csv
 
     camera = load_camera_yaml(calibration)
-    config = PipelineConfig(mode="offline", settings=load_fuser_settings(params_file))
+    settings = load_fuser_settings(params_file)
+    config = PipelineConfig(mode="offline", settings=settings.for_hand_boxes() if hand_boxes else settings)
     results = []
     for run in runs:
         frames = []
@@ -436,7 +441,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         predictions, tracks = export_recordings(runs, out)
         from vessel_track.demo_report import write_report
 
-        offline = export_offline_predictions(runs, out, calibration, params[0])
+        offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
         summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
                                "labels" if args.detections == "labels" else "frames")
         (out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -268,11 +268,12 @@ def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Pa
     return np.array(boxes, dtype=float), np.array(world, dtype=float)
 
 
-def cross_validated_cue_statistics(dataset, videos: list[int] | None, config=None, detections_csv=None):
+def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor: float, config=None,
+                                   detections_csv=None):
     """Cue noise measured out of sample (leave one video out), pooled over the training videos.
 
-    For each training video: calibrate (``vessel_calib.calibration``) and fit the distance model on the other
-    videos, and take the residuals of its boxes.
+    For each training video: calibrate (``vessel_calib.calibration``, boxes read ``box_anchor`` of the way down)
+    and fit the distance model on the other videos, and take the residuals of its boxes.
 
     The calibration fitted on the very boxes whose residuals are measured makes in-sample residuals
     optimistic; the fusion weights and covariances should describe boxes the calibration has not seen.
@@ -287,9 +288,9 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, config=Non
     resid, x_resid = [], []
     for held_out in labelled:
         others = [v for v in labelled if v != held_out]
-        screen, gps = dataset.calibration_pairs(others)
+        screen, gps = dataset.calibration_pairs(others, anchor=box_anchor)
         camera = calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size,
-                           dataset.center).model
+                           dataset.center, box_anchor=box_anchor).model
         if detections_csv is None:
             boxes, world = training_pairs(dataset, camera, others)
             held_boxes, held_world = training_pairs(dataset, camera, [held_out])
@@ -318,7 +319,6 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--calib", type=Path, default=None,
                      help="calibration YAML (default: config/aitas_camera.yaml if present, else the dataset's "
                           "paper-corrected calibration)")
-    fit.add_argument("--anchor", type=float, default=None, help="box reference point: 0 top, 0.5 centre, 1 bottom")
     fit.add_argument("--out", type=Path, required=True, help="parameter YAML to write/update (fuser block)")
     fit.add_argument("--node", default="fuser", help="node block to write into (default: fuser)")
     fit.add_argument("--detections", type=Path, default=None,
@@ -346,12 +346,12 @@ def main(argv: list[str] | None = None) -> int:
             source = f"detector boxes {args.detections.name} videos {args.videos}, camera " \
                      f"{Path(camera_source.split(' ')[0]).name}"
         model = fit_distance_model(camera, boxes, world, source=source)
-        config = FusionConfig() if args.anchor is None else FusionConfig(anchor=args.anchor)
+        config = FusionConfig()
         if args.in_sample:
             stats = fit_cue_statistics(camera, model, boxes, world, config)
             how = "in-sample"
         else:
-            stats = cross_validated_cue_statistics(dataset, videos, config, args.detections)
+            stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections)
             how = "leave-one-video-out"
         update_params_file(args.out, args.node, "distance_model", model.to_params())
         fusion_block = config.to_params()

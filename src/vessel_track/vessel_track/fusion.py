@@ -119,8 +119,10 @@ class FusionConfig:
 
     weights_mode: ``fitted`` (variance-minimising, from the measured cue covariance), ``paper`` (0.5, 0.25,
         0.25 for position, width, height) or ``position_only`` (the box position alone).
-    anchor: reference point of the box along its height: 0 top edge, 0.5 centre (the paper and the
-        calibration's labels), 1 bottom edge.
+    anchor_offset: where down its box a tracked vessel's position is read, relative to the calibration's
+        ``camera.box_anchor`` (the point of the hand-drawn boxes H was fitted on): 0 reads boxes as the
+        calibration did; a detector whose boxes sit differently on a vessel than hand-drawn ones (taller, with
+        the wake, without the mast) reads them ``anchor_offset`` box heights lower (negative: higher).
     max_range_m: positions further than this from the camera are rejected (1 px near the horizon is
         hundreds of metres out there).
     clip_m: positions are clipped to ±clip_m east and north (the paper: 2000).
@@ -132,7 +134,7 @@ class FusionConfig:
     """
 
     weights_mode: str = "fitted"
-    anchor: float = 0.5
+    anchor_offset: float = 0.0
     max_range_m: float = 2000.0
     clip_m: float = 2000.0
     min_depth_m: float = 1.0
@@ -146,8 +148,8 @@ class FusionConfig:
         if self.screen_source not in SCREEN_SOURCES:
             raise DataError(f"fusion: screen_source must be one of {', '.join(SCREEN_SOURCES)}, got "
                             f"{self.screen_source!r}")
-        if not (math.isfinite(self.anchor) and 0.0 <= self.anchor <= 1.0):
-            raise DataError(f"fusion: anchor must be in [0, 1] (0 top, 0.5 centre, 1 bottom), got {self.anchor!r}")
+        if not (math.isfinite(self.anchor_offset) and -1.0 <= self.anchor_offset <= 1.0):
+            raise DataError(f"fusion: anchor_offset must be in [-1, 1] box heights, got {self.anchor_offset!r}")
         for name in ("max_range_m", "clip_m", "min_depth_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -155,9 +157,9 @@ class FusionConfig:
 
     def to_params(self) -> dict:
         """The ``fusion`` parameters (without the cue statistics)."""
-        return {"weights_mode": self.weights_mode, "anchor": float(self.anchor), "max_range_m": float(self.max_range_m),
-                "clip_m": float(self.clip_m), "min_depth_m": float(self.min_depth_m),
-                "screen_source": self.screen_source}
+        return {"weights_mode": self.weights_mode, "anchor_offset": float(self.anchor_offset),
+                "max_range_m": float(self.max_range_m), "clip_m": float(self.clip_m),
+                "min_depth_m": float(self.min_depth_m), "screen_source": self.screen_source}
 
 
 @dataclass
@@ -203,15 +205,13 @@ def ideal_to_world_jacobian(camera, xp, yp) -> np.ndarray:
     return J
 
 
-def reference_points(boxes_xyxy, anchor: float) -> np.ndarray:
-    """(N, 2) reference point of each box: horizontal centre, ``anchor`` of the way down the box."""
-    b = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
-    return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
-
-
 def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionConfig | None = None,
                stats: CueStatistics | None = None) -> FusedBoxes:
-    """Fuse position and size cues of each box (N, 4 full-resolution px) into sea-plane positions."""
+    """Fuse position and size cues of each box (N, 4 full-resolution px) into sea-plane positions.
+
+    The box position is read where the calibration was fitted (``camera.box_reference_points``), shifted by
+    ``config.anchor_offset``.
+    """
     config = config or FusionConfig()
     stats = stats or CueStatistics()
     boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
@@ -219,7 +219,7 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
     sizes = boxes[:, 2:] - boxes[:, :2]
     ok_input = np.all(np.isfinite(boxes), axis=1) & np.all(sizes > 0, axis=1)
     safe = np.where(ok_input[:, None], boxes, np.array([0.0, 0.0, 1.0, 1.0]))
-    ref = reference_points(safe, config.anchor)
+    ref = camera.box_reference_points(safe, config.anchor_offset)
     xp, yp_pos = camera.undistort(ref[:, 0], ref[:, 1])
     xp = np.asarray(xp, dtype=float).reshape(-1)
     yp_pos = np.asarray(yp_pos, dtype=float).reshape(-1)
@@ -302,7 +302,7 @@ def cue_residuals(camera, model: BoxSizeDistanceModel, boxes_xyxy, world_xy, con
     config = config or FusionConfig()
     boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
     world = np.asarray(world_xy, dtype=float).reshape(-1, 2)
-    fused = fuse_boxes(camera, model, boxes, FusionConfig(weights_mode="paper", anchor=config.anchor,
+    fused = fuse_boxes(camera, model, boxes, FusionConfig(weights_mode="paper", anchor_offset=config.anchor_offset,
                                                           max_range_m=1e9, clip_m=1e9), CueStatistics())
     xp_true, yp_true, zp = camera.world_to_ideal(world[:, 0], world[:, 1])
     behind = ~(np.asarray(zp, dtype=float).reshape(-1) < 0)

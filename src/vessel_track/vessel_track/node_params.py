@@ -26,7 +26,9 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "distance_model.source": ("Where the distance model comes from (informational).", None),
     "fusion.weights_mode": ("fitted (variance-minimising from cue_covariance), paper (0.5/0.25/0.25) or "
                             "position_only.", None),
-    "fusion.anchor": ("Box reference point along its height: 0 top, 0.5 centre (paper), 1 bottom.", (0.0, 1.0)),
+    "fusion.anchor_offset": ("Box heights below the calibration's camera.box_anchor at which a box is read (0: as "
+                             "the calibration; for detector boxes that sit differently than hand-drawn ones).",
+                             (-1.0, 1.0)),
     "fusion.max_range_m": ("Positions further than this from the camera are rejected, m.", (1.0, 1e6)),
     "fusion.clip_m": ("Positions are clipped to +-clip_m east and north (paper: 2000), m.", (1.0, 1e6)),
     "fusion.min_depth_m": ("Points closer than this depth in front of the camera are rejected, m.", (1e-3, 1e4)),

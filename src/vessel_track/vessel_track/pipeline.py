@@ -393,7 +393,7 @@ def run(frames: list[DetectionFrame], camera, config: PipelineConfig) -> list[Vi
 
 
 def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: list[int],
-                        config: PipelineConfig) -> list[VideoResult]:
+                        config: PipelineConfig, box_anchor: float) -> list[VideoResult]:
     """Run each video with everything fitted on the other training videos: an honest score on training data.
 
     For each video of ``frames``: the camera is calibrated (``vessel_calib.calibration.calibrate``), the
@@ -410,12 +410,12 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
     results = []
     for video in sorted(by_video):
         others = [v for v in train_videos if v != video]
-        screen, gps = dataset.calibration_pairs(others)
+        screen, gps = dataset.calibration_pairs(others, anchor=box_anchor)
         camera = calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size,
-                           dataset.center).model
+                           dataset.center, box_anchor=box_anchor).model
         boxes, world = training_pairs(dataset, camera, others)
         settings = dataclasses.replace(config.settings, distance_model=fit_distance_model(camera, boxes, world),
-                                       cue_stats=cross_validated_cue_statistics(dataset, others))
+                                       cue_stats=cross_validated_cue_statistics(dataset, others, box_anchor))
         results.append(run_video(by_video[video], camera, dataclasses.replace(config, settings=settings)))
     return results
 
@@ -527,6 +527,7 @@ def main(argv: list[str] | None = None) -> int:
         settings = load_fuser_settings(params_path)
         if args.detections == "labels":
             frames = label_detections(dataset, videos)
+            settings = settings.for_hand_boxes()
         else:
             frames = csv_detections(Path(args.detections), dataset, videos)
             if args.appearance is not None:
@@ -538,7 +539,8 @@ def main(argv: list[str] | None = None) -> int:
                                             args.appearance_nested)
         config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
         if args.leave_one_out:
-            results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config)
+            results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config,
+                                          camera.box_anchor)
             camera_source = f"calibrated per video on {args.leave_one_out} minus that video"
         else:
             results = run(frames, camera, config)
