@@ -210,6 +210,8 @@ def test_top_box_share_counts_frames_where_the_vessel_is_the_best_box():
     ]
     assert ap.top_box_share(dataset, camera, frames) == {13: (1, 2), 14: (1, 1)}
     camera.screen_to_gps = lambda x, y: (32.0 + x / 1e6, -117.0 + y / 1e6, True)
+    camera.box_reference_points = lambda box, offset=0.0: np.array([[(box[0] + box[2]) / 2, box[1] + (0.65 + offset)
+                                                                     * (box[3] - box[1])]])
     lines = ap.per_frame_backprojection(dataset, camera, frames)
     assert lines[0] == "video,t_utc_s,lat,lon" and len(lines) == 4   # frames 13/0, 13/1, 14/0
-    assert lines[1].split(",")[2:] == ["32.00010000", "-116.99990000"]
+    assert lines[1].split(",")[2:] == ["32.00010000", "-116.99989850"]  # read 0.65 of the way down the box
