@@ -34,6 +34,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from vessel_calib.camera_model import PAPER_BOX_ANCHOR, box_points
 from vessel_calib.errors import CalibrationError, DataError, VesselError
 
 if TYPE_CHECKING:
@@ -223,7 +224,7 @@ def _column(fields_lower: dict[str, str], names) -> str | None:
     return next((fields_lower[n] for n in names if n in fields_lower), None)
 
 
-def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 0.5):
+def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = PAPER_BOX_ANCHOR):
     """Labelled pairs from a CSV -> (screen (N,2), gps (N,2), dropped rows without GPS, notes).
 
     Box corners become the box's horizontal centre, ``anchor`` of the way down it; x,y columns are used as given.
@@ -270,9 +271,7 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
         if xcol is not None and ycol is not None:
             x, y = num(i, xcol), num(i, ycol)
         else:
-            x = 0.5 * (num(i, lower["x1"]) + num(i, lower["x2"]))
-            y1 = num(i, lower["y1"])
-            y = y1 + anchor * (num(i, lower["y2"]) - y1)
+            x, y = box_points([num(i, lower[c]) for c in ("x1", "y1", "x2", "y2")], anchor)[0]
         if use_time:
             try:
                 t = parse_time(rows[i].get(tcol, ""))

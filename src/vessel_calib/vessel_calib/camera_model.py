@@ -44,6 +44,12 @@ PAPER_BOX_ANCHOR = 0.5
 PARAM_KEYS_REQUIRED = ("camera_lat", "camera_lon", "image_width", "image_height", "H", "K1", "center_x", "center_y")
 
 
+def box_points(boxes_xyxy, anchor: float) -> np.ndarray:
+    """(N, 2) points of boxes (x1, y1, x2, y2): the horizontal centre, ``anchor`` of the way down (0 top, 1 bottom)."""
+    b = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+    return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
+
+
 def _arr(value) -> np.ndarray:
     return np.asarray(value, dtype=float)
 
@@ -214,9 +220,7 @@ class CameraModel:
         ``anchor_offset`` reads the boxes that many box heights lower (boxes drawn differently from the labels
         the calibration was fitted on); the point stays inside the box.
         """
-        b = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
-        anchor = min(max(self._box_anchor + float(anchor_offset), 0.0), 1.0)
-        return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
+        return box_points(boxes_xyxy, min(max(self._box_anchor + float(anchor_offset), 0.0), 1.0))
 
     @property
     def max_screen_radius(self) -> float:

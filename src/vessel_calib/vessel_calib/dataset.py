@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel
+from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel, box_points
 from vessel_calib.errors import CalibrationError, DataError
 from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
 
@@ -119,7 +119,8 @@ class LabelRecord:
 
     def reference_point(self, anchor: float) -> tuple[float, float]:
         """(x, y): the box's horizontal centre, ``anchor`` of the way down it (0 top, 0.5 centre, 1 bottom)."""
-        return (0.5 * (self.x1 + self.x2), self.y1 + anchor * (self.y2 - self.y1))
+        x, y = box_points([self.x1, self.y1, self.x2, self.y2], anchor)[0]
+        return (float(x), float(y))
 
 
 @dataclass(frozen=True)
