@@ -89,6 +89,27 @@ def _two_static_tracks(config):
     return tracker, a, b
 
 
+@pytest.mark.parametrize("density, vessel_gets_the_boat", [(2.0, True), (0.0, False)])
+def test_a_track_may_stay_unmatched_rather_than_give_the_vessel_its_wake(density, vessel_gets_the_boat):
+    """Video 13's second frame: the boat moved 33 px; its wake's box (too wide) lies where the boat was.
+
+    A far sailboat's new track could take the boat's box at a stretch (its velocity is still unknown). Forcing
+    both tracks to get a box gives the vessel its wake; with a cost for leaving a track unmatched (the clutter
+    likelihood), the vessel keeps its boat and the sailboat's track gets nothing this frame.
+    """
+    tracker = MultiTargetTracker(TrackerConfig(clutter_density_per_mpx=density))
+    t1, t2 = (s.track_id for s in tracker.update(T0, [box(835.6, 436.7, 18.2, 11.4), box(960.4, 412.0, 11.5, 7.1)],
+                                                  [0.99, 0.63]))
+    wake, boat = box(838.8, 440.2, 44.9, 8.2), box(868.4, 435.3, 24.8, 9.8)
+    states = by_id(tracker.update(T0 + 3.85, [wake, boat], [0.99, 0.99]))
+    if vessel_gets_the_boat:
+        assert states[t1].measured_center[0] == pytest.approx(868.4)
+        assert not states[t2].updated
+    else:  # no clutter test: as many pairs as the gates allow
+        assert states[t1].measured_center[0] == pytest.approx(838.8)
+        assert states[t2].measured_center[0] == pytest.approx(868.4)
+
+
 @pytest.mark.parametrize("association", ["global", "greedy"])
 def test_global_assignment_where_greedy_fails(association):
     """Tracks at x=100 and x=200; detections at 160 and 245.
@@ -97,7 +118,7 @@ def test_global_assignment_where_greedy_fails(association):
     gate (145 px), so a new track starts; the global assignment pairs 100-160 and 200-245.
     """
     config = TrackerConfig(association=association, distance_metric="euclidean", gate_px=100.0,
-                           gate_sigmas=1.0, size_weight=0.0)
+                           gate_sigmas=1.0, size_weight=0.0, clutter_density_per_mpx=1.0)
     tracker, a, b = _two_static_tracks(config)
     states = by_id(tracker.update(T0 + 6, [box(160, 400), box(245, 400)], [0.9, 0.9]))
     if association == "global":
