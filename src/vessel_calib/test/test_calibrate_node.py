@@ -144,10 +144,12 @@ def test_box_corners_are_read_at_the_box_anchor_and_the_anchor_is_written(tmp_pa
     assert evaluate(model, model.box_reference_points(boxes), gps).reproj_max_px < 1e-3
 
 
-def test_box_anchor_outside_the_box_is_refused(tmp_path, pairs_csv, capsys):
+@pytest.mark.parametrize("anchor", ["1.5", "-0.2", "nan"])
+def test_box_anchor_outside_the_box_is_refused(tmp_path, pairs_csv, capsys, anchor):
     out = tmp_path / "cal.yaml"
-    status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--box-anchor", "1.5", "--out", out], capsys)
+    status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--box-anchor", anchor, "--out", out], capsys)
     assert status == 2 and err.startswith("error: ") and "box_anchor" in err and len(err.strip().splitlines()) == 1
+    assert "[0, 1]" in err
     assert not out.exists()
 
 

@@ -348,6 +348,9 @@ def run(args) -> int:
         raise CalibrationError("give the camera position: --camera-lat and --camera-lon (WGS-84 degrees)")
     geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (--camera-lat/--camera-lon)")
 
+    if not 0.0 <= args.box_anchor <= 1.0:  # NaN fails too
+        raise CalibrationError(f"--box-anchor (camera.box_anchor) must be a number in [0, 1] (0 box top, 0.5 centre, "
+                               f"1 bottom), got {args.box_anchor}")
     notes: list[str] = []
     videos = None
     if args.pairs_csv:
