@@ -208,6 +208,21 @@ def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem):
     assert sys.version_info >= (3, 10)
 
 
+@pytest.mark.parametrize("problem", ["old_fusion_anchor", "box_anchor_outside_the_box"])
+def test_parameters_from_before_the_box_anchor_refuse_to_start(tmp_path, problem):
+    env = ros_env()
+    from vessel_track.simulation import challenge_camera
+
+    camera = dict(challenge_camera().to_params(), box_anchor=2.0 if problem == "box_anchor_outside_the_box" else 0.65)
+    params = write_params(tmp_path / "p.yaml", camera_block=camera)
+    extra = ["-p", "fusion.anchor:=0.5"] if problem == "old_fusion_anchor" else []
+    done = subprocess.run([_executable("fuser"), "--ros-args", "--params-file", str(params), *extra], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert "Traceback" not in done.stderr
+    assert "camera.box_anchor" in done.stderr if problem == "old_fusion_anchor" else "box_anchor must be" in done.stderr
+
+
 def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
     """Simulated detections -> tracker -> fuser -> gps_publisher, all separate processes.
 

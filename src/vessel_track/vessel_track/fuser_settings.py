@@ -60,6 +60,11 @@ FITTED_ERROR_MODEL = ErrorModel(slope=0.0721617495, kind="origin", n_points=61,
                                        "(pipeline --leave-one-out 7-12)")
 
 
+FUSION_ANCHOR_MOVED = ("fuser parameters: fusion.anchor is no longer a fuser parameter: where a box stands for the "
+                       "vessel belongs to the calibration it was fitted with (camera.box_anchor, written by calibrate "
+                       "--box-anchor); remove fusion.anchor from the parameter file")
+
+
 @dataclass(frozen=True)
 class FuserSettings:
     """Everything the fusion stage needs besides the camera."""
@@ -107,9 +112,7 @@ class FuserSettings:
 
         fusion_block = block("fusion")
         if "anchor" in fusion_block:
-            raise DataError("fuser parameters: fusion.anchor is no longer a fuser parameter: where a box stands for "
-                            "the vessel belongs to the calibration it was fitted with (camera.box_anchor, written "
-                            "by calibrate --box-anchor); remove fusion.anchor from the parameter file")
+            raise DataError(FUSION_ANCHOR_MOVED)
         cue = {k: fusion_block.pop(k) for k in ("cue_covariance", "cue_x_std_px", "cue_n_points") if k in fusion_block}
         try:
             cue_stats = CueStatistics(

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from vessel_calib.errors import CalibrationError, DataError
-from vessel_track.fuser_settings import FuserSettings, flatten
+from vessel_track.fuser_settings import FUSION_ANCHOR_MOVED, FuserSettings, flatten
 
 _INF = 1.0e12
 
@@ -96,6 +96,8 @@ def declare_fuser_settings(node) -> FuserSettings:
     """Declare every fusion parameter on ``node`` (with descriptors) and build the settings from them."""
     from vessel_calib.node_support import declare_parameter
 
+    if "fusion.anchor" in getattr(node, "_parameter_overrides", {}):  # rclpy keeps undeclared overrides there
+        raise DataError(FUSION_ANCHOR_MOVED)  # a file from before camera.box_anchor: say so rather than ignore it
     values = {}
     for name, default in fuser_parameter_defaults().items():
         description, value_range = FUSER_PARAMETERS[name]
