@@ -1,4 +1,6 @@
 """Box-size distance model: depth convention, fit, inversion (ROS-free, synthetic camera)."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -91,3 +93,27 @@ def test_params_round_trip_and_validation():
         BoxSizeDistanceModel.from_params({"a": "many"})
     with pytest.raises(DataError):
         fit_distance_model(challenge_camera(), np.zeros((2, 4)), np.ones((2, 2)))
+
+
+def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
+    """Refitting into a parameter file replaces the distance model and cue statistics only.
+
+    The detector's ``anchor_offset`` and the weights mode stay; the cues are measured on hand boxes (offset 0).
+    """
+    import yaml
+
+    from vessel_track.distance_model import main
+    from vessel_track.fuser_settings import load_fuser_settings
+
+    repo = Path(__file__).resolve().parents[3]
+    out = tmp_path / "params.yaml"
+    out.write_text("fuser:\n  ros__parameters:\n    fusion: {anchor_offset: 0.05, weights_mode: paper}\n"
+                   "tracker:\n  ros__parameters: {min_hits: 2}\n")
+    calib = repo / "config" / "aitas_camera.yaml"
+    assert main(["fit", "--data", str(data_dir), "--videos", "7-12", "--calib", str(calib), "--out", str(out)]) == 0
+    settings = load_fuser_settings(out)
+    assert settings.fusion.anchor_offset == 0.05 and settings.fusion.weights_mode == "paper"
+    assert settings.distance_model.n_points == 66
+    shipped = load_fuser_settings(repo / "config" / "aitas.yaml")
+    np.testing.assert_allclose(settings.cue_stats.covariance, shipped.cue_stats.covariance, rtol=1e-8)
+    assert yaml.safe_load(out.read_text())["tracker"]["ros__parameters"] == {"min_hits": 2}

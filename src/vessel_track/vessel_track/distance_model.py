@@ -26,6 +26,7 @@ Fit tool (writes the ``distance_model`` and ``fusion.cue_*`` blocks of the fuser
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass
@@ -332,6 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from vessel_calib.dataset import parse_videos
         from vessel_track.error_model import update_params_file
+        from vessel_track.fuser_settings import load_fuser_settings
         from vessel_track.fusion import FusionConfig, fit_cue_statistics
         from vessel_track.pipeline import load_camera, open_dataset
 
@@ -346,7 +348,9 @@ def main(argv: list[str] | None = None) -> int:
             source = f"detector boxes {args.detections.name} videos {args.videos}, camera " \
                      f"{Path(camera_source.split(' ')[0]).name}"
         model = fit_distance_model(camera, boxes, world, source=source)
-        config = FusionConfig()
+        # The file's other fusion settings stay; the cues are measured on boxes read as these boxes are read.
+        kept = load_fuser_settings(args.out, args.node).fusion if args.out.is_file() else FusionConfig()
+        config = kept if args.detections is not None else dataclasses.replace(kept, anchor_offset=0.0)
         if args.in_sample:
             stats = fit_cue_statistics(camera, model, boxes, world, config)
             how = "in-sample"
@@ -354,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
             stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections)
             how = "leave-one-video-out"
         update_params_file(args.out, args.node, "distance_model", model.to_params())
-        fusion_block = config.to_params()
+        fusion_block = kept.to_params()
         fusion_block.update(stats.to_params())
         update_params_file(args.out, args.node, "fusion", fusion_block)
     except VesselError as error:
