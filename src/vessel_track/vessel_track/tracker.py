@@ -603,7 +603,7 @@ class MultiTargetTracker:
                    sizes: np.ndarray) -> list[tuple[int, int]]:
         cost = self._cost_matrix(tracks, centers, sizes)
         if self.config.association == "global":
-            miss = self._miss_cost()
+            miss = self._clutter_cost() if self.config.distance_metric == "mahalanobis" else math.inf
             if math.isfinite(miss) and cost.size:
                 # One "no detection" column per track: the assignment may leave a track unmatched rather than
                 # take a worse pair for it so that another track gets a barely admissible one.
@@ -618,26 +618,25 @@ class MultiTargetTracker:
             rows, cols = greedy_assignment(cost)
         return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FORBIDDEN_COST]
 
-    def _miss_cost(self) -> float:
-        """Cost of leaving a track without a detection in the global assignment.
+    def _clutter_cost(self) -> float:
+        """The clutter likelihood on the scale of the mahalanobis cost (``mahalanobis2 + ln det S + size_term``).
 
-        That of the least likely pair the clutter test admits (mahalanobis cost, clutter density > 0); infinite
-        otherwise, which forces as many pairs as the gates allow.
+        A pair costing more is likelier clutter than the track and is not admissible; in the global assignment it
+        is also the cost of leaving a track without a detection. Infinite when the test is off (density 0).
         """
         cfg = self.config
-        if cfg.distance_metric != "mahalanobis" or cfg.clutter_density_per_mpx <= 0:
+        if cfg.clutter_density_per_mpx <= 0:
             return math.inf
-        miss = -2.0 * math.log(cfg.clutter_density_per_mpx * 1e-6) - _LOG_2PI_SQ
+        cost = -2.0 * math.log(cfg.clutter_density_per_mpx * 1e-6) - _LOG_2PI_SQ
         if cfg.size_weight > 0:
-            miss += _CLUTTER_LOG_SIZE_NLL - 2.0 * math.log(2.0 * math.pi * cfg.size_log_std**2)
-        return miss
+            cost += _CLUTTER_LOG_SIZE_NLL - 2.0 * math.log(2.0 * math.pi * cfg.size_log_std**2)
+        return cost
 
     def _cost_matrix(self, tracks: list[_Track], centers: np.ndarray, sizes: np.ndarray) -> np.ndarray:
         """(tracks, detections) association cost; gated-out pairs cost ``_FORBIDDEN_COST``."""
         cfg = self.config
         cost = np.full((len(tracks), len(centers)), _FORBIDDEN_COST)
-        clutter_limit = (-2.0 * math.log(cfg.clutter_density_per_mpx * 1e-6)
-                         if cfg.clutter_density_per_mpx > 0 else math.inf)
+        clutter_cost = self._clutter_cost()
         for i, track in enumerate(tracks):
             P = track.kf.P[np.ix_((0, 2), (0, 2))]
             for j in range(len(centers)):
@@ -654,13 +653,8 @@ class MultiTargetTracker:
                 if cfg.max_size_ratio > 0 and np.any(np.abs(ratio) > math.log(cfg.max_size_ratio)):
                     continue
                 size_term = float(np.sum((ratio / cfg.size_log_std) ** 2))
-                track_nll = mahalanobis2 + log_det_S + _LOG_2PI_SQ
-                limit = clutter_limit
-                if cfg.size_weight > 0:
-                    track_nll += size_term + 2.0 * math.log(2.0 * math.pi * cfg.size_log_std**2)
-                    limit += _CLUTTER_LOG_SIZE_NLL
-                if track_nll > limit:
-                    continue
+                if mahalanobis2 + log_det_S + (size_term if cfg.size_weight > 0 else 0.0) > clutter_cost:
+                    continue  # likelier clutter than this track
                 if cfg.distance_metric == "mahalanobis":
                     position_term = mahalanobis2 + log_det_S
                 else:
