@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vessel_calib.calibration import DEFAULT_BOX_ANCHOR, calibrate, evaluate
+from vessel_calib.calibration import DEFAULT_BOX_ANCHOR, calibrate, calibrate_from_labels, evaluate
 from vessel_calib.geodesy import haversine_m
 from vessel_calib.params import load_camera_yaml
 
@@ -58,8 +58,7 @@ def _leave_one_video_out_m_per_100m(dataset, anchor: float) -> float:
     errors, distances = [], []
     for video in range(7, 13):
         others = [v for v in range(7, 13) if v != video]
-        model = calibrate(*dataset.calibration_pairs(others, anchor=anchor, label_passes="all"), dataset.camera_lat,
-                          dataset.camera_lon, box_anchor=anchor).model
+        model = calibrate_from_labels(dataset, others, anchor, label_passes="all")
         screen, gps = dataset.calibration_pairs([video], anchor=anchor, label_passes="all")
         lat, lon, valid = model.screen_to_gps(screen[:, 0], screen[:, 1])
         errors += list(haversine_m(lat, lon, gps[:, 0], gps[:, 1])[valid])

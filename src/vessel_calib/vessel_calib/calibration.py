@@ -540,6 +540,17 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
         figures=figures, k1_scan=(k1_values, losses), scan_k1=k1_scan_best, nfev=nfev)
 
 
+def calibrate_from_labels(dataset, videos, box_anchor: float, label_passes: str = "primary") -> CameraModel:
+    """The camera fitted on a data folder's labelled boxes of ``videos``, each read ``box_anchor`` of the way down.
+
+    One place that reads the pairs and fits with the same anchor (the leave-one-video-out fits of the pipeline and
+    of the fusion's cue noise); ``dataset`` is a ``vessel_calib.dataset.Dataset``.
+    """
+    screen, gps = dataset.calibration_pairs(videos, anchor=box_anchor, label_passes=label_passes)
+    return calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size, dataset.center,
+                     box_anchor=box_anchor).model
+
+
 # --------------------------------------------------------------------------- evaluation
 def _backproj_errors(model: CameraModel, screen, gps) -> np.ndarray:
     lat, lon, valid = model.screen_to_gps(screen[:, 0], screen[:, 1])

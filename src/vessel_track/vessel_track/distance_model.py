@@ -279,7 +279,7 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor
     The calibration fitted on the very boxes whose residuals are measured makes in-sample residuals
     optimistic; the fusion weights and covariances should describe boxes the calibration has not seen.
     """
-    from vessel_calib.calibration import calibrate
+    from vessel_calib.calibration import calibrate_from_labels
     from vessel_track.fusion import cue_residuals, cue_statistics_of_residuals
 
     labelled = sorted({r.video for r in dataset.labels(videos, primary_only=True) if r.gps_ok})
@@ -289,9 +289,7 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor
     resid, x_resid = [], []
     for held_out in labelled:
         others = [v for v in labelled if v != held_out]
-        screen, gps = dataset.calibration_pairs(others, anchor=box_anchor)
-        camera = calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size,
-                           dataset.center, box_anchor=box_anchor).model
+        camera = calibrate_from_labels(dataset, others, box_anchor)
         if detections_csv is None:
             boxes, world = training_pairs(dataset, camera, others)
             held_boxes, held_world = training_pairs(dataset, camera, [held_out])

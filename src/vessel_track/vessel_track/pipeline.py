@@ -396,12 +396,12 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
                         config: PipelineConfig, box_anchor: float) -> list[VideoResult]:
     """Run each video with everything fitted on the other training videos: an honest score on training data.
 
-    For each video of ``frames``: the camera is calibrated (``vessel_calib.calibration.calibrate``), the
+    For each video of ``frames``: the camera is calibrated (``vessel_calib.calibration.calibrate_from_labels``), the
     distance model fitted and the cue noise measured (itself leave-one-out) on the labelled training videos
     other than this one; the rest of ``config.settings`` is kept. Used to fit the error model on scores the
     calibration has not seen.
     """
-    from vessel_calib.calibration import calibrate
+    from vessel_calib.calibration import calibrate_from_labels
     from vessel_track.distance_model import cross_validated_cue_statistics, fit_distance_model, training_pairs
 
     by_video: dict[int, list[DetectionFrame]] = defaultdict(list)
@@ -410,9 +410,7 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
     results = []
     for video in sorted(by_video):
         others = [v for v in train_videos if v != video]
-        screen, gps = dataset.calibration_pairs(others, anchor=box_anchor)
-        camera = calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size,
-                           dataset.center, box_anchor=box_anchor).model
+        camera = calibrate_from_labels(dataset, others, box_anchor)
         boxes, world = training_pairs(dataset, camera, others)
         settings = dataclasses.replace(config.settings, distance_model=fit_distance_model(camera, boxes, world),
                                        cue_stats=cross_validated_cue_statistics(dataset, others, box_anchor))
