@@ -11,6 +11,7 @@ from vessel_calib.params import (
     load_camera_params,
     load_camera_yaml,
     read_params_yaml,
+    update_params_block,
     write_camera_yaml,
     write_params_yaml,
 )
@@ -105,3 +106,90 @@ def test_non_finite_values_refused(tmp_path):
     with pytest.raises(CalibrationError, match="non-finite"):
         write_params_yaml(tmp_path / "x.yaml", {"/**": {"a": float("nan")}})
     assert not (tmp_path / "x.yaml").exists()
+
+
+DOCUMENTED = """\
+# The graph's parameters. This header must survive a refit.
+/**:
+  ros__parameters:
+    use_sim_time: false   # keep me
+
+fuser:
+  ros__parameters:
+    input_topic: /vessel/tracks/screen  # topic comment
+    distance_model:
+      a: 1.0   # width = a / depth + b
+      b: 2.0
+      old_key: 3   # dropped: the fit no longer writes it
+    fusion:
+      anchor_offset: 0.05  # the detector's boxes
+    # a comment between blocks
+    error_model:
+      slope: 0.0908  # per metre
+tracker:
+  ros__parameters: {min_hits: 3}  # flow style elsewhere is left alone
+"""
+
+
+def test_update_block_keeps_comments_order_and_every_other_block(tmp_path):
+    """A fitting tool pointed at a documented parameter file replaces one block and loses nothing else."""
+    path = tmp_path / "graph.yaml"
+    path.write_text(DOCUMENTED)
+    update_params_block(path, "fuser", "distance_model",
+                        {"b": 20.5, "a": 4825.857747169489, "source": "labels 7-12, x"},
+                        comments={"source": "where it comes from", "a": "not used: the file has a comment"})
+    text = path.read_text()
+    doc = yaml.safe_load(text)
+    assert doc["fuser"]["ros__parameters"]["distance_model"] == {"a": 4825.857747169489, "b": 20.5,
+                                                                  "source": "labels 7-12, x"}
+    before = yaml.safe_load(DOCUMENTED)
+    for node in ("/**", "tracker"):
+        assert doc[node] == before[node]
+    for block in ("fusion", "error_model", "input_topic"):
+        assert doc["fuser"]["ros__parameters"][block] == before["fuser"]["ros__parameters"][block]
+    lines = text.splitlines()
+    for line in DOCUMENTED.splitlines():
+        if "old_key" not in line and not line.lstrip().startswith(("a:", "b:")):
+            assert line in lines, line
+    block = lines[lines.index("    distance_model:") + 1:lines.index("    fusion:")]
+    assert block == ["      a: 4825.857747169489   # width = a / depth + b".replace("   #", "  #"),
+                     "      b: 20.5", "      source: 'labels 7-12, x'  # where it comes from"]
+
+
+def test_update_block_adds_missing_blocks_and_files(tmp_path):
+    path = tmp_path / "graph.yaml"
+    path.write_text(DOCUMENTED)
+    update_params_block(path, "fuser", "offline", {"iterations": 5, "threshold": float("nan")},
+                        {"iterations": "passes"})
+    update_params_block(path, "gps_publisher", "error_model", {"slope": 0.05})
+    doc = yaml.safe_load(path.read_text())
+    offline = doc["fuser"]["ros__parameters"]["offline"]
+    assert offline["iterations"] == 5 and offline["threshold"] != offline["threshold"]
+    assert "      iterations: 5  # passes" in path.read_text().splitlines()
+    assert doc["gps_publisher"] == {"ros__parameters": {"error_model": {"slope": 0.05}}}
+    assert path.read_text().startswith("# The graph's parameters.")
+    fresh = tmp_path / "new" / "fresh.yaml"
+    update_params_block(fresh, "fuser", "error_model", {"slope": 0.07, "source": "a: b"})
+    assert yaml.safe_load(fresh.read_text()) == {"fuser": {"ros__parameters": {"error_model": {
+        "slope": 0.07, "source": "a: b"}}}}
+
+
+def test_update_block_rewrites_a_flow_style_block_and_refuses_to_drop_comments(tmp_path):
+    """A one-line flow block becomes a block; a flow-style node with comments in the file is refused, untouched."""
+    path = tmp_path / "flow.yaml"
+    path.write_text("fuser:\n  ros__parameters:\n    fusion: {anchor_offset: 0.05, weights_mode: paper}\n")
+    update_params_block(path, "fuser", "fusion", {"anchor_offset": 0.05, "weights_mode": "fitted"})
+    assert path.read_text() == "fuser:\n  ros__parameters:\n    fusion:\n      anchor_offset: 0.05\n" \
+                               "      weights_mode: fitted\n"
+    path.write_text(DOCUMENTED)
+    with pytest.raises(CalibrationError, match="without losing the file's comments"):
+        update_params_block(path, "tracker", "gate", {"px": 40.0})
+    assert path.read_text() == DOCUMENTED
+    bare = tmp_path / "bare.yaml"
+    bare.write_text("tracker:\n  ros__parameters: {min_hits: 3}\n")
+    update_params_block(bare, "tracker", "gate", {"px": 40.0})
+    assert yaml.safe_load(bare.read_text()) == {"tracker": {"ros__parameters": {"min_hits": 3, "gate": {"px": 40.0}}}}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("fuser: [1, 2\n")
+    with pytest.raises(CalibrationError, match="not valid YAML"):
+        update_params_block(bad, "fuser", "fusion", {"a": 1})

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -119,6 +120,212 @@ def write_camera_yaml(path, model: CameraModel, header: str = "", extra: Mapping
     if extra:
         block.update(extra)
     return write_params_yaml(path, {ALL_NODES: block}, header)
+
+
+def yaml_value_text(value: Any) -> str:
+    """One YAML value on one line: floats exactly (``repr``), NaN as ``.nan``, lists and mappings in flow style."""
+    value = _plain_keep_nan(value)
+    if isinstance(value, float):
+        return ".nan" if math.isnan(value) else (repr(value) if math.isfinite(value) else
+                                                 (".inf" if value > 0 else "-.inf"))
+    if isinstance(value, list):
+        return "[" + ", ".join(yaml_value_text(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{yaml_value_text(str(k))}: {yaml_value_text(v)}" for k, v in value.items()) + "}"
+    # Inside a one-item flow list a string is quoted where a flow context needs it (commas, colons), so the text
+    # is valid both as a block value and inside a flow list or mapping.
+    return yaml.safe_dump([value], default_flow_style=True, width=10000).strip()[1:-1]
+
+
+def _plain_keep_nan(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, tuple):
+        return list(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+_KEY_LINE = re.compile(r"""^(?P<indent> *)(?P<key>"[^"]*"|'[^']*'|[^\s#:'"][^:#]*?) *:(?P<rest>(?:\s.*)?)$""")
+
+
+def _key_line(line: str):
+    """(indent, key, rest) of a ``key: ...`` line, or None."""
+    match = _KEY_LINE.match(line)
+    if not match:
+        return None
+    key = match["key"]
+    if key[:1] in "\"'":
+        key = key[1:-1]
+    return len(match["indent"]), key, match["rest"]
+
+
+def _split_comment(rest: str) -> tuple[str, str]:
+    """``' value  # comment'`` -> (value text, comment text without '#'), honouring quotes."""
+    quote = ""
+    for i, ch in enumerate(rest):
+        if quote:
+            quote = "" if ch == quote else quote
+        elif ch in "\"'":
+            quote = ch
+        elif ch == "#" and (i == 0 or rest[i - 1] in " \t"):
+            return rest[:i].strip(), rest[i + 1:].strip()
+    return rest.strip(), ""
+
+
+def _is_content(line: str) -> bool:
+    stripped = line.strip()
+    return bool(stripped) and not stripped.startswith("#")
+
+
+def _indent(line: str) -> int:
+    return len(line) - len(line.lstrip(" "))
+
+
+def _span_end(lines: list[str], start: int) -> int:
+    """End (exclusive) of the section headed by ``lines[start]``: its more-indented content lines."""
+    indent = _indent(lines[start])
+    end = start + 1
+    for i in range(start + 1, len(lines)):
+        if not _is_content(lines[i]):
+            continue
+        if _indent(lines[i]) <= indent:
+            break
+        end = i + 1
+    return end
+
+
+def _children(lines: list[str], start: int, end: int) -> dict[str, int]:
+    """Keys directly under the section ``lines[start]`` (up to ``end``) -> their line index."""
+    found: dict[str, int] = {}
+    child_indent = None
+    for i in range(start + 1, end):
+        if not _is_content(lines[i]):
+            continue
+        indent = _indent(lines[i])
+        if child_indent is None:
+            child_indent = indent
+        if indent == child_indent:
+            parsed = _key_line(lines[i])
+            if parsed:
+                found.setdefault(parsed[1], i)
+    return found
+
+
+def _is_block_header(line: str) -> bool:
+    parsed = _key_line(line)
+    return parsed is not None and _split_comment(parsed[2])[0] == ""
+
+
+def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping[str, Any],
+                        comments: Mapping[str, str]) -> list[str] | None:
+    """``lines`` with ``<node>: ros__parameters: <block>:`` set to ``values``.
+
+    None if the layout is not block-style YAML this can edit.
+    """
+    top = {}
+    for i, line in enumerate(lines):
+        if _is_content(line) and _indent(line) == 0:
+            parsed = _key_line(line)
+            if parsed is None:
+                return None
+            top.setdefault(parsed[1], i)
+
+    def key_lines(indent: int, old_comments: Mapping[str, str]) -> list[str]:
+        """The block's lines: keys already in the file first, in their order and with their comments."""
+        order = [key for key in old_comments if key in values] + [key for key in values if key not in old_comments]
+        out = []
+        for key in order:
+            comment = old_comments.get(key) or comments.get(key, "")
+            out.append(f"{' ' * indent}{key}: {yaml_value_text(values[key])}" + (f"  # {comment}" if comment else ""))
+        return out
+
+    if node not in top:
+        tail = [""] if lines and lines[-1].strip() else []
+        return lines + tail + [f"{yaml_value_text(node)}:", "  ros__parameters:", f"    {block}:"] + key_lines(6, {})
+    node_at = top[node]
+    if not _is_block_header(lines[node_at]):
+        return None
+    node_end = _span_end(lines, node_at)
+    params_at = _children(lines, node_at, node_end).get("ros__parameters")
+    if params_at is None:
+        indent = _indent(lines[node_at]) + 2
+        insert = [f"{' ' * indent}ros__parameters:", f"{' ' * (indent + 2)}{block}:"] + key_lines(indent + 4, {})
+        return lines[:node_end] + insert + lines[node_end:]
+    if not _is_block_header(lines[params_at]):
+        return None
+    params_end = _span_end(lines, params_at)
+    block_at = _children(lines, params_at, params_end).get(block)
+    if block_at is None:
+        siblings = [i for i in range(params_at + 1, params_end) if _is_content(lines[i])]
+        indent = _indent(lines[siblings[0]]) if siblings else _indent(lines[params_at]) + 2
+        insert = [f"{' ' * indent}{block}:"] + key_lines(indent + 2, {})
+        return lines[:params_end] + insert + lines[params_end:]
+    block_end = _span_end(lines, block_at)
+    block_indent = _indent(lines[block_at])
+    head, comment = _split_comment(_key_line(lines[block_at])[2])
+    old_comments: dict[str, str] = {}
+    key_indent = block_indent + 2
+    if head:  # flow style on one line: rewrite it as a block
+        header = f"{' ' * block_indent}{_key_line(lines[block_at])[1]}:" + (f"  # {comment}" if comment else "")
+    else:
+        header = lines[block_at]
+        old = _children(lines, block_at, block_end)
+        if old:
+            key_indent = _indent(lines[min(old.values())])
+        for key, i in sorted(old.items(), key=lambda item: item[1]):
+            old_comments[key] = _split_comment(_key_line(lines[i])[2])[1]
+    return lines[:block_at] + [header] + key_lines(key_indent, old_comments) + lines[block_end:]
+
+
+def update_params_block(path, node: str, block: str, values: Mapping[str, Any],
+                        comments: Mapping[str, str] | None = None) -> Path:
+    """Set ``<node>: ros__parameters: <block>:`` to ``values`` in a ROS parameter YAML, keeping the rest of it.
+
+    The file is edited as text so its comments and layout survive (a fitting tool pointed at a documented
+    parameter file must not strip it); each key keeps its comment, new keys get ``comments[key]``. The result is
+    parsed back and must equal the old document with only that block replaced; a layout this cannot edit that
+    way (flow-style node blocks, anchors) is rewritten as plain YAML when the file has no comments to lose, and
+    refused otherwise. Creates the file if needed; written atomically.
+    """
+    path = Path(path)
+    comments = dict(comments or {})
+    text = ""
+    document: dict = {}
+    if path.exists():
+        try:
+            text = path.read_text(encoding="utf-8")
+            document = yaml.safe_load(text) or {}
+        except OSError as exc:
+            raise CalibrationError(f"cannot read parameter file {path}: {exc.strerror or exc}") from None
+        except yaml.YAMLError as exc:
+            raise CalibrationError(f"{path}: not valid YAML ({str(exc).splitlines()[0]}); fix it or write to a "
+                                   "new file") from None
+        if not isinstance(document, dict):
+            raise CalibrationError(f"{path}: expected a ROS parameter file (a mapping of node names)")
+    node_block = document.get(node, {})
+    params = node_block.get("ros__parameters", {}) if isinstance(node_block, dict) else None
+    if not isinstance(node_block, dict) or not isinstance(params, dict):
+        raise CalibrationError(f"{path}: '{node}' has no 'ros__parameters' mapping")
+    expected = dict(document)
+    written = {str(k): yaml.safe_load(yaml_value_text(v)) for k, v in values.items()}
+    expected[node] = {**node_block, "ros__parameters": {**params, block: written}}
+    lines = text.splitlines()
+    edited = _replace_block_text(lines, node, block, values, comments)
+    if edited is not None:
+        new_text = "\n".join(edited) + "\n"
+        if _same_document(yaml.safe_load(new_text), expected):
+            return atomic_write_text(path, new_text)
+    if any(line.lstrip().startswith("#") or " #" in line for line in lines):
+        raise CalibrationError(f"{path}: cannot set {node}.{block} in place without losing the file's comments "
+                               "(its layout is not plain block-style YAML); write to a new file and copy the "
+                               f"'{block}' block over")
+    return atomic_write_text(path, yaml.safe_dump(expected, sort_keys=False, default_flow_style=None))
+
+
+def _same_document(a: Any, b: Any) -> bool:
+    return yaml.safe_dump(a, sort_keys=True) == yaml.safe_dump(b, sort_keys=True)
 
 
 def read_params_yaml(path) -> dict:

@@ -51,6 +51,29 @@ def test_fit_tool_writes_and_merges_the_parameter_file(tmp_path, capsys):
     assert "5.00 m per 100 m" in capsys.readouterr().out
 
 
+def test_fit_tool_keeps_the_documented_parameter_file(tmp_path):
+    """Refitting into the shipped config/aitas.yaml changes the error model only: every comment stays."""
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[3] / "config" / "aitas.yaml"
+    out = tmp_path / "aitas.yaml"
+    out.write_text(shipped.read_text())
+    scores = tmp_path / "scores.csv"
+    scores.write_text("video,t_utc_s,error_m,distance_m\n13,1,5.0,100\n13,2,10.0,200\n")
+    assert main(["fit", str(scores), "--out", str(out)]) == 0
+    before, after = shipped.read_text().splitlines(), out.read_text().splitlines()
+    assert len(after) == len(before)
+    changed = [(a, b) for a, b in zip(before, after, strict=True) if a != b]
+    assert changed and all(a.split(":")[0] == b.split(":")[0] and a.split(":")[0].strip() in ("slope", "n_points",
+                                                                                            "source")
+                           for a, b in changed), changed
+    assert all(a.split("#", 1)[1] == b.split("#", 1)[1] for a, b in changed)
+    old, new = yaml.safe_load(shipped.read_text()), yaml.safe_load(out.read_text())
+    assert new["fuser"]["ros__parameters"]["error_model"]["slope"] == pytest.approx(0.05)
+    new["fuser"]["ros__parameters"]["error_model"] = old["fuser"]["ros__parameters"]["error_model"]
+    assert new == old
+
+
 def test_fit_tool_reports_bad_input_without_traceback(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "x.yaml")]) == 2
     assert capsys.readouterr().err.startswith("error: ")

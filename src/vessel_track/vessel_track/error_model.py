@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.errors import DataError, VesselError
-from vessel_calib.params import atomic_write_text
+from vessel_calib.params import update_params_block
 
 #: The paper's figure: 5.55 m of error per 100 m of distance.
 PAPER_SLOPE = 0.0555
@@ -149,27 +149,14 @@ def read_scores_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def update_params_file(path: Path, node: str, block: str, values: dict) -> None:
     """Set ``<node>: ros__parameters: <block>: values`` in a ROS parameter YAML, keeping everything else.
 
-    Creates the file if needed; written atomically (temp file + rename).
+    Comments and layout of the file survive (``vessel_calib.params.update_params_block``); keys new to the
+    file get the fuser parameter's description as their comment. Creates the file if needed; written atomically.
     """
-    import yaml
+    from vessel_track.node_params import FUSER_PARAMETERS
 
-    path = Path(path)
-    document: dict = {}
-    if path.exists():
-        try:
-            document = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as error:
-            raise DataError(f"{path}: not valid YAML ({error}); fix it or write to a new file") from None
-        if not isinstance(document, dict):
-            raise DataError(f"{path}: expected a ROS parameter file (a mapping of node names)")
-    node_block = document.setdefault(node, {})
-    if not isinstance(node_block, dict):
-        raise DataError(f"{path}: '{node}' is not a mapping")
-    params = node_block.setdefault("ros__parameters", {})
-    if not isinstance(params, dict):
-        raise DataError(f"{path}: '{node}.ros__parameters' is not a mapping")
-    params[block] = values
-    atomic_write_text(path, yaml.safe_dump(document, sort_keys=False, default_flow_style=None))
+    descriptions = {key: FUSER_PARAMETERS[f"{block}.{key}"][0] for key in values
+                    if f"{block}.{key}" in FUSER_PARAMETERS}
+    update_params_block(path, node, block, values, descriptions)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -177,17 +177,17 @@ GPS_PUBLISHER_PARAMETERS = {
 
 
 def _yaml_value(value) -> str:
+    """``vessel_calib.params.yaml_value_text`` with floats rounded to 10 decimals (readable part files)."""
     import math
 
-    import yaml
+    from vessel_calib.params import yaml_value_text
 
-    if isinstance(value, float) and math.isnan(value):
-        return ".nan"
-    if isinstance(value, list):
-        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
-    if isinstance(value, float):
-        return repr(round(value, 10))
-    return yaml.safe_dump(value, default_flow_style=True, width=10000).strip().removesuffix("...").strip()
+    def rounded(v):
+        if isinstance(v, list):
+            return [rounded(x) for x in v]
+        return round(v, 10) if isinstance(v, float) and math.isfinite(v) else v
+
+    return yaml_value_text(rounded(value))
 
 
 def render_fuser_yaml(settings: FuserSettings) -> str:
