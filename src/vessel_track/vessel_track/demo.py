@@ -22,6 +22,7 @@ from pathlib import Path
 
 from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset, default_data_dir, parse_videos
 from vessel_calib.errors import VesselError
+from vessel_track.fuser_settings import HAND_BOX_FUSION
 from vessel_track.graph import GRAPH_NODES, RECORDER, GraphNode, GraphRunner, default_params_file, repo_root
 
 REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")
@@ -239,8 +240,8 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
                                 "topics": [f"{topic}:{msgtype}" for topic, msgtype in OUTPUT_TOPICS.items()]})
         nodes = {node.name: node for node in GRAPH_NODES}
         runner.start(nodes["gps_publisher"])
-        # Hand-drawn boxes are read where the calibration was fitted on them (FuserSettings.for_hand_boxes).
-        runner.start(nodes["fuser"], {"fusion": {"anchor_offset": 0.0}} if labels else None)
+        # Hand-drawn boxes are read as the calibration read them (FuserSettings.for_hand_boxes).
+        runner.start(nodes["fuser"], {"fusion": dict(HAND_BOX_FUSION)} if labels else None)
         runner.start(nodes["tracker"])
         if saved_csv is not None:
             runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",

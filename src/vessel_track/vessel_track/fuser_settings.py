@@ -4,7 +4,7 @@ The fuser node, the pipeline and the fit tools share this, so the parameter file
 ``fuser`` block of ``config/aitas.yaml`` (``config/parts/fuser.yaml``) holds the sub-blocks
 
     distance_model: {a, b, c, d, sigma_width_px, sigma_height_px, ...}     (distance_model.py)
-    fusion: {weights_mode, max_range_m, clip_m, min_depth_m, cue_covariance, cue_x_std_px}  (fusion.py)
+    fusion: {weights_mode, anchor_offset, ..., shape_jump_ratio, cue_covariance, cue_x_std_px}  (fusion.py)
     motion: {accel_psd, initial_speed_std, max_speed, gate_chi2, max_rejections, max_gap_s}          (smoothing.py)
     selection: {confidence_percentile, join_*, switch_*, ...}                                        (selection.py)
     offline: {outlier_threshold_px, iterations}                                                       (pipeline)
@@ -60,6 +60,10 @@ FITTED_ERROR_MODEL = ErrorModel(slope=0.0721617495, kind="origin", n_points=61,
                                        "(pipeline --leave-one-out 7-12)")
 
 
+#: the ``fusion`` settings that describe a detector's boxes, as they are for hand-drawn ones
+#: (``FuserSettings.for_hand_boxes``; the demo passes them to the fuser node in its labels mode)
+HAND_BOX_FUSION = {"anchor_offset": 0.0, "shape_jump_ratio": 0.0}
+
 FUSION_ANCHOR_MOVED = ("fuser parameters: fusion.anchor is no longer a fuser parameter: where a box stands for the "
                        "vessel belongs to the calibration it was fitted with (camera.box_anchor, written by calibrate "
                        "--box-anchor); remove fusion.anchor from the parameter file")
@@ -78,12 +82,13 @@ class FuserSettings:
     error_model: ErrorModel = field(default_factory=lambda: FITTED_ERROR_MODEL)
 
     def for_hand_boxes(self) -> FuserSettings:
-        """These settings for hand-drawn boxes: read at the calibration's own ``box_anchor`` (no offset).
+        """These settings for hand-drawn boxes: read at the calibration's ``box_anchor``, no shape suspicion.
 
         ``fusion.anchor_offset`` describes how a detector's boxes sit on a vessel against the hand-drawn boxes the
-        calibration was fitted on; hand-drawn boxes fed as detections (``--detections labels``) need none.
+        calibration was fitted on, ``fusion.shape_jump_ratio`` a detector box that took in spray or wake; hand-drawn
+        boxes fed as detections (``--detections labels``) need neither: their shape changes when the vessel turns.
         """
-        return dataclasses.replace(self, fusion=dataclasses.replace(self.fusion, anchor_offset=0.0))
+        return dataclasses.replace(self, fusion=dataclasses.replace(self.fusion, **HAND_BOX_FUSION))
 
     def to_params(self) -> dict:
         """Nested parameter dict (the ``fuser`` block's ``ros__parameters`` minus topics)."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +43,8 @@ DEFAULT_CUE_COVARIANCE = (5.7147051439, -4.8621659687, -4.9854487734, -4.8621659
 PAPER_WEIGHTS = (0.5, 0.25, 0.25)
 #: Chi-square (2 dof, 99 %) below which a box's size cues agree with its position cue.
 SIZE_CONSISTENCY_CHI2 = 9.21
+#: measured boxes of a track whose median aspect a new box is compared with (``FusionConfig.shape_jump_ratio``)
+SHAPE_HISTORY = 5
 
 # Why a box gave no position.
 REASON_OK = 0
@@ -131,6 +134,12 @@ class FusionConfig:
         measurements for the world filter, which does the smoothing) or ``filtered`` (the tracker's filtered
         box, which a second filter then smooths again). Measured on the training videos 7-12: the raw box is
         better online and offline, with hand boxes and with the detector.
+    shape_jump_ratio: a box whose aspect (height / width) is more than this many times the median aspect of its
+        track's last ``SHAPE_HISTORY`` measured boxes is suspect: a detector box that took in the spray or wake
+        below a fast hull is taller for its width, and its bottom, so its position, sits too near. Its position
+        covariance is multiplied by ``shape_jump_variance_factor``, so the world filter and the offline
+        smoother lean on the track's motion instead. 0: off (hand-drawn boxes, tight around the hull).
+    shape_jump_variance_factor: that multiplier (>= 1).
     """
 
     weights_mode: str = "fitted"
@@ -139,6 +148,8 @@ class FusionConfig:
     clip_m: float = 2000.0
     min_depth_m: float = 1.0
     screen_source: str = "measured"
+    shape_jump_ratio: float = 0.0
+    shape_jump_variance_factor: float = 9.0
 
     def __post_init__(self) -> None:
         """Validate the fields."""
@@ -154,12 +165,19 @@ class FusionConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise DataError(f"fusion: {name} must be a positive number of metres, got {value!r}")
+        if not (math.isfinite(self.shape_jump_ratio) and (self.shape_jump_ratio == 0 or self.shape_jump_ratio > 1)):
+            raise DataError(f"fusion: shape_jump_ratio must be 0 (off) or a ratio > 1, got {self.shape_jump_ratio!r}")
+        if not (math.isfinite(self.shape_jump_variance_factor) and self.shape_jump_variance_factor >= 1):
+            raise DataError("fusion: shape_jump_variance_factor must be a finite number >= 1, got "
+                            f"{self.shape_jump_variance_factor!r}")
 
     def to_params(self) -> dict:
         """The ``fusion`` parameters (without the cue statistics)."""
         return {"weights_mode": self.weights_mode, "anchor_offset": float(self.anchor_offset),
                 "max_range_m": float(self.max_range_m), "clip_m": float(self.clip_m),
-                "min_depth_m": float(self.min_depth_m), "screen_source": self.screen_source}
+                "min_depth_m": float(self.min_depth_m), "screen_source": self.screen_source,
+                "shape_jump_ratio": float(self.shape_jump_ratio),
+                "shape_jump_variance_factor": float(self.shape_jump_variance_factor)}
 
 
 @dataclass
@@ -424,6 +442,7 @@ class TrackFuser:
         self.error_model = error_model or ErrorModel()
         self.filters: dict[str, WorldKalmanFilter] = {}
         self._ended_filters: dict[str, WorldKalmanFilter] = {}   # of ended tracks, while a join may continue them
+        self._aspects: dict[str, deque] = {}                     # recent box aspects per track (shape_jump_ratio)
         self.last_stamp: float | None = None
         self.counts: dict[str, int] = {}
 
@@ -434,6 +453,7 @@ class TrackFuser:
         """Forget every track (a replay restarted)."""
         self.filters.clear()
         self._ended_filters.clear()
+        self._aspects.clear()
         self.selector.reset()
         self.last_stamp = None
 
@@ -480,11 +500,11 @@ class TrackFuser:
                     kf = self.filters[track.track_id] = WorldKalmanFilter(self.motion_config)
                 if fused.valid[i]:
                     wt.measured_position = fused.world[i].copy()
-                    wt.measured_covariance = fused.covariance[i].copy()
+                    wt.measured_covariance = fused.covariance[i] * self._shape_factor(track)
                     wt.measured_screen = fused.screen[i].copy()
                     chi2 = float(fused.size_chi2[i])
                     wt.size_consistent = None if not math.isfinite(chi2) else bool(chi2 <= SIZE_CONSISTENCY_CHI2)
-                    result = kf.update(stamp, fused.world[i], fused.covariance[i])
+                    result = kf.update(stamp, fused.world[i], wt.measured_covariance)
                     if result is not None and not result.accepted and not result.restarted:
                         self._count("outlier_rejected")
                     if result is not None and result.restart_reason == "rejections":
@@ -502,6 +522,8 @@ class TrackFuser:
         present = {t.track_id for t in tracks}
         for tid in [t for t in self.filters if t not in present]:
             self._ended_filters[tid] = self.filters.pop(tid)  # vanished without a LOST report
+        live = {t.track_id for t in good if t.status != STATUS_LOST}
+        self._aspects = {tid: history for tid, history in self._aspects.items() if tid in live}
         for tid in changed_identity:
             self.selector.identity_changed(tid, stamp)
         target = self.selector.update(stamp, world_tracks)
@@ -513,6 +535,18 @@ class TrackFuser:
             wt.score = self.selector.score(wt.screen.track_id)
             wt.is_target = target is not None and wt.screen.track_id == target and wt.screen.status != STATUS_LOST
         return out + world_tracks
+
+    def _shape_factor(self, track: ScreenTrack) -> float:
+        """Covariance multiplier of this frame's box: ``shape_jump_variance_factor`` if its aspect jumped."""
+        history = self._aspects.setdefault(track.track_id, deque(maxlen=SHAPE_HISTORY))
+        aspect = float(track.size[1] / track.size[0])
+        ratio = self.fusion_config.shape_jump_ratio
+        jumped = ratio > 0 and len(history) >= 2 and aspect > ratio * float(np.median(history))
+        history.append(aspect)
+        if jumped:
+            self._count("shape_jump")
+            return self.fusion_config.shape_jump_variance_factor
+        return 1.0
 
     def _continue_filters(self, stamp: float, world_tracks: list[WorldTrack]) -> None:
         """A track the selection joined to an earlier one (``selector.continued``) continues that one's filter too.

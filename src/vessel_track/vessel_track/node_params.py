@@ -34,6 +34,10 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "fusion.min_depth_m": ("Points closer than this depth in front of the camera are rejected, m.", (1e-3, 1e4)),
     "fusion.screen_source": ("Box the fuser measures: measured (the detection associated in this image, "
                              "VesselTrack.detection_bbox) or filtered (the tracker's filtered bbox).", None),
+    "fusion.shape_jump_ratio": ("A box taller for its width than this many times its track's median aspect (last "
+                                "5 boxes) is suspect (spray or wake below the hull): its position covariance is "
+                                "multiplied by shape_jump_variance_factor. 0: off.", (0.0, 100.0)),
+    "fusion.shape_jump_variance_factor": ("Covariance multiplier of a box whose aspect jumped.", (1.0, 1e6)),
     "fusion.cue_covariance": ("3x3 covariance (row-major) of the ideal-y errors of the position, width and "
                               "height cues, px^2 (fitted).", None),
     "fusion.cue_x_std_px": ("Std of the box reference point's x, ideal px (fitted).", (1e-6, 1e4)),
