@@ -215,3 +215,8 @@ def test_top_box_share_counts_frames_where_the_vessel_is_the_best_box():
     lines = ap.per_frame_backprojection(dataset, camera, frames)
     assert lines[0] == "video,t_utc_s,lat,lon" and len(lines) == 4   # frames 13/0, 13/1, 14/0
     assert lines[1].split(",")[2:] == ["32.00010000", "-116.99989850"]  # read 0.65 of the way down the box
+    by_score = ap.per_frame_backprojection(dataset, camera, frames, pick="score")
+    assert len(by_score) == 6                                           # every frame with a box, GPS or not
+    assert by_score[2].split(",")[2] == "32.00030500"                  # 13/1: the other boat, scored 0.9
+    with pytest.raises(DataError, match="pick"):
+        ap.per_frame_backprojection(dataset, camera, frames, pick="nearest")

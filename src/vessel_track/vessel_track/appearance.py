@@ -147,25 +147,35 @@ def top_box_share(dataset, camera, frames, radius_px: float = POSITIVE_PX) -> di
     return {video: (first, total) for video, (first, total) in sorted(out.items())}
 
 
+PER_FRAME_PICKS = ("gps", "score")
+
+
 def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIVE_PX,
-                             anchor_offset: float = 0.0) -> list[str]:
-    """``video,t_utc_s,lat,lon`` lines: each frame's box nearest the vessel's projected GPS, back-projected.
+                             anchor_offset: float = 0.0, pick: str = "gps") -> list[str]:
+    """``video,t_utc_s,lat,lon`` lines: one box per frame back-projected, a baseline without tracking.
 
-    The box is read where the fuser reads it: the calibration's reference point plus ``anchor_offset``.
-
-    A baseline without tracker, fusion or selection (and with the right box picked by the GPS): what the tracker
-    and fuser have to beat, as the per-frame back-projection of hand boxes is for hand boxes. Frames without a
-    box within ``radius_px`` give no line.
+    ``pick``: ``gps``, the box nearest the vessel's projected GPS (the right box picked by the truth; frames
+    without a box within ``radius_px`` give no line), or ``score``, the box the detector scores highest (what a
+    system without tracker and selection would publish). The box is read where the fuser reads it: the
+    calibration's reference point plus ``anchor_offset``. What the tracker and fuser have to beat, as the
+    per-frame back-projection of hand boxes is for hand boxes.
     """
     from vessel_track.pipeline import PREDICTION_HEADER, prediction_line
 
+    if pick not in PER_FRAME_PICKS:
+        raise DataError(f"appearance: pick must be one of {', '.join(PER_FRAME_PICKS)}, got {pick!r}")
     track = dataset.gps_track()
     lines = [PREDICTION_HEADER]
     for frame in frames:
-        found = pixels_from_vessel(track, camera, frame)
-        if found is None or found[0].min() > radius_px:
-            continue
-        box = frame.boxes[int(np.argmin(found[0]))]
+        if pick == "score":
+            if not len(frame.boxes):
+                continue
+            box = frame.boxes[int(np.argmax(frame.scores))]
+        else:
+            found = pixels_from_vessel(track, camera, frame)
+            if found is None or found[0].min() > radius_px:
+                continue
+            box = frame.boxes[int(np.argmin(found[0]))]
         (x, y), = camera.box_reference_points(box, anchor_offset)
         lat, lon, valid = camera.screen_to_gps(x, y)
         if bool(np.all(valid)):
@@ -255,8 +265,11 @@ def main(argv: list[str] | None = None) -> int:
     rank.add_argument("--calib", type=Path, default=None, help="calibration YAML (default config/aitas_camera.yaml)")
     rank.add_argument("--radius", type=float, default=POSITIVE_PX, help="px from the vessel's projected GPS")
     rank.add_argument("--per-frame-out", type=Path, default=None, metavar="PREDICTIONS.csv",
-                      help="also write the per-frame back-projection of the box nearest the vessel's GPS (a "
-                           "baseline; score it with ./vessel eval)")
+                      help="also write the per-frame back-projection of one box per frame (a baseline; score it "
+                           "with ./vessel eval)")
+    rank.add_argument("--pick", choices=PER_FRAME_PICKS, default="gps",
+                      help="with --per-frame-out: the box nearest the vessel's GPS (gps, the truth picks it) or "
+                           "the highest-scored box (score, what a per-frame system would publish)")
     rank.add_argument("--params", type=Path, default=None,
                       help="parameter YAML whose fuser fusion.anchor_offset the per-frame back-projection reads "
                            "boxes with (default config/aitas.yaml)")
@@ -271,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
                 from vessel_track.pipeline import _atomic_lines
 
                 offset = load_fuser_settings(args.params or default_params_path()).fusion.anchor_offset
-                lines = per_frame_backprojection(dataset, camera, frames, args.radius, offset)
+                lines = per_frame_backprojection(dataset, camera, frames, args.radius, offset, args.pick)
                 _atomic_lines(args.per_frame_out, lines)
                 print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
             shares = top_box_share(dataset, camera, frames, args.radius)
