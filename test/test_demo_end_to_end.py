@@ -43,6 +43,11 @@ def test_short_demo_writes_sane_outputs(data_dir, model_path, ros_env, tmp_path)
     assert overall["n"] > 0
     for key in ("m_per_100m", "median_m", "p80_m"):
         assert math.isfinite(overall[key]) and overall[key] >= 0, (key, overall)
+    with (out / "fixes.csv").open() as handle:
+        assert len(list(csv.DictReader(handle))) == len(rows)
+    honesty = summary["online_covariance"]["overall"]
+    assert honesty["n"] > 0 and 0 <= honesty["inside_95"] <= 1 and honesty["nees_mean"] > 0, honesty
+    assert "inside their 68 / 95 / 99 % ellipses" in result.stdout
     assert (out / "tracks.csv").stat().st_size > 0
     assert (out / "predictions_offline.csv").is_file()
     for picture in ("online/error_vs_distance.png", "online/error_hist.png", "online/map_video13.png"):

@@ -7,7 +7,15 @@ import pytest
 
 from vessel_calib import geodesy
 from vessel_calib.errors import DataError
-from vessel_track.evaluation import main, metrics, read_predictions
+from vessel_track.evaluation import (
+    FIX_COLUMNS,
+    covariance_consistency,
+    format_covariance_line,
+    main,
+    metrics,
+    read_predictions,
+    score_fix_covariances,
+)
 from vessel_track.simulation import CHALLENGE_CAMERA_LATLON, CHALLENGE_H, CHALLENGE_K1
 
 LAT0, LON0 = CHALLENGE_CAMERA_LATLON
@@ -115,6 +123,44 @@ def test_scoring_a_known_offset(tmp_path, capsys):
     assert "13-16" not in summary["splits"]
     for name in ("error_vs_distance.png", "error_hist.png", "map_video13.png", "map_video14.png"):
         assert (out / name).stat().st_size > 1000
+
+
+def test_covariance_consistency_tells_honest_from_overconfident_and_conservative():
+    rng = np.random.default_rng(4)
+    C = np.array([[400.0, 150.0], [150.0, 100.0]])    # long along one axis, as a range-dominated fix
+    errors = rng.multivariate_normal([0.0, 0.0], C, size=20000)
+    covs = np.repeat(C[None], len(errors), axis=0)
+    honest = covariance_consistency(errors[:, 0], errors[:, 1], covs)
+    assert honest["inside_68"] == pytest.approx(0.683, abs=0.01)
+    assert honest["inside_95"] == pytest.approx(0.95, abs=0.005)
+    assert honest["nees_mean"] == pytest.approx(2.0, abs=0.05) and honest["n"] == 20000
+    assert covariance_consistency(errors[:, 0], errors[:, 1], covs / 4)["inside_95"] < 0.55     # claims too much
+    assert covariance_consistency(errors[:, 0], errors[:, 1], covs * 4)["inside_68"] > 0.98     # conservative
+    bad = covs[:3].copy()
+    bad[1] = np.nan
+    bad[2] = [[1.0, 2.0], [2.0, 1.0]]                                                            # not positive definite
+    assert covariance_consistency([1.0, 1.0, 1.0], [0.0, np.nan, 0.0], bad)["n"] == 1
+    assert covariance_consistency([], [], np.zeros((0, 2, 2)))["n"] == 0
+
+
+def test_fix_covariances_are_scored_against_the_gps(tmp_path):
+    """The demo's fixes.csv: a fix 5 m east of the truth with a 5 m east std is one sigma out."""
+    data = tmp_path / "data"
+    starts = make_dataset(data)
+    write_predictions(tmp_path / "p.csv", starts, offset_m=5.0)
+    rows = [line for line in (tmp_path / "p.csv").read_text().splitlines()[1:] if "not-a-number" not in line]
+    lines = [",".join(FIX_COLUMNS)] + [row + ",25.0,0.0,1.0" for row in rows]
+    (tmp_path / "fixes.csv").write_text("\n".join(lines) + "\n")
+    from vessel_calib.dataset import Dataset
+
+    summary = score_fix_covariances(tmp_path / "fixes.csv", Dataset(data), [13, 14])
+    overall = summary["overall"]
+    assert overall["n"] == 20 and overall["nees_mean"] == pytest.approx(1.0, abs=0.01)
+    assert overall["inside_68"] == 1.0 and summary["per_video"]["13"]["n"] == 10
+    assert "100 / 100 / 100 % of 20 errors" in format_covariance_line("overall", overall)
+    (tmp_path / "bad.csv").write_text("video,t_utc_s,lat,lon\n")
+    with pytest.raises(DataError, match="cov_ee_m2"):
+        score_fix_covariances(tmp_path / "bad.csv", Dataset(data), [13])
 
 
 def test_bad_input_gives_one_line_and_status_2(tmp_path, capsys):

@@ -307,16 +307,23 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
 # Outputs
 # --------------------------------------------------------------------------------------------------------------
 def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
-    """``predictions.csv`` from /vessel/fix and ``tracks.csv`` from /vessel/tracks of the recorded bags."""
+    """``predictions.csv`` from /vessel/fix and ``tracks.csv`` from /vessel/tracks of the recorded bags.
+
+    Also ``fixes.csv``: the same fixes with their east-north covariance (how honest it is goes into the report).
+    """
     import math
 
     from vessel_detect.bag_io import BagReader, ns_of_stamp
+    from vessel_track.evaluation import FIX_COLUMNS
 
     predictions_path = out / "predictions.csv"
     tracks_path = out / "tracks.csv"
-    with predictions_path.open("w", newline="") as p_handle, tracks_path.open("w", newline="") as t_handle:
+    with predictions_path.open("w", newline="") as p_handle, tracks_path.open("w", newline="") as t_handle, \
+            (out / "fixes.csv").open("w", newline="") as f_handle:
         predictions = csv.writer(p_handle)
         predictions.writerow(["video", "t_utc_s", "lat", "lon"])
+        fixes = csv.writer(f_handle)
+        fixes.writerow(FIX_COLUMNS)
         tracks = csv.writer(t_handle)
         tracks.writerow(["video", "t_utc_s", "track_id", "is_target", "status", "x_px", "y_px", "w_px", "h_px",
                          "east_m", "north_m", "lat", "lon", "distance_m", "expected_error_m", "confidence"])
@@ -328,8 +335,10 @@ def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
                         if fix.status.status < 0 or not (math.isfinite(fix.latitude) and math.isfinite(fix.longitude)):
                             continue
                         t = ns_of_stamp(fix.header.stamp) / 1e9
-                        predictions.writerow([run.video, f"{t % 86400:.3f}", f"{fix.latitude:.8f}",
-                                              f"{fix.longitude:.8f}"])
+                        row = [run.video, f"{t % 86400:.3f}", f"{fix.latitude:.8f}", f"{fix.longitude:.8f}"]
+                        predictions.writerow(row)
+                        c = fix.position_covariance
+                        fixes.writerow(row + [f"{c[0]:.4f}", f"{c[1]:.4f}", f"{c[4]:.4f}"])
                 if "/vessel/tracks" in topics:
                     for _, array in reader.read_topic("/vessel/tracks"):
                         t = ns_of_stamp(array.header.stamp) / 1e9
@@ -446,8 +455,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
                                "labels" if args.detections == "labels" else "frames")
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
-        log(f"outputs in {out}: predictions.csv, predictions_offline.csv, tracks.csv, summary.json, plots, "
-            "recording/")
+        log(f"outputs in {out}: predictions.csv, predictions_offline.csv, fixes.csv, tracks.csv, summary.json, "
+            "plots, recording/")
         return 0
     except VesselError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from vessel_track.evaluation import evaluate, format_table
+from vessel_track.evaluation import evaluate, format_covariance_line, format_table, score_fix_covariances
 
 PAPER_SPLITS = {"13-16": [13, 14, 15, 16], "13-17": [13, 14, 15, 16, 17]}
 
@@ -35,6 +35,12 @@ def write_report(dataset, videos: list[int], out: Path, predictions: Path, track
                                  frames=coverage_frames)
     print("Vessel of interest as published on /vessel/fix (online):")
     print(format_table(summary["online"]))
+    fixes = out / "fixes.csv"
+    if fixes.is_file():
+        honesty = summary["online_covariance"] = score_fix_covariances(fixes, dataset, videos)
+        print("Its covariance (NavSatFix position_covariance) against its error:")
+        for name, block in (honesty["splits"] or {"overall": honesty["overall"]}).items():
+            print("  " + format_covariance_line(name, block))
     if offline_predictions is not None and offline_predictions.is_file():
         summary["offline"] = evaluate(offline_predictions, dataset.path, videos, out=out / "offline",
                                       calib=calibration, frames=coverage_frames)

@@ -255,6 +255,79 @@ def summarize(scored: ScoredPredictions, cover: dict, videos: list[int]) -> dict
     return summary
 
 
+#: squared Mahalanobis radius of the 68.3 / 95 / 99 % ellipse of a 2-D Gaussian (chi-square, 2 degrees of freedom)
+ELLIPSE_CHI2 = {"68": 2.2958, "95": 5.9915, "99": 9.2103}
+FIX_COLUMNS = (*PREDICTION_COLUMNS, "cov_ee_m2", "cov_en_m2", "cov_nn_m2")
+
+
+def covariance_consistency(east_error_m, north_error_m, covariances) -> dict:
+    """How honest 2-D position covariances are, against the errors they describe.
+
+    ``east_error_m``, ``north_error_m`` (N,) estimate minus truth; ``covariances`` (N, 2, 2) m^2 (east, north).
+    Honest covariances put 68 / 95 / 99 % of the errors inside their 68 / 95 / 99 % ellipses, with a mean
+    squared Mahalanobis distance (NEES) of 2; more inside is a covariance larger than the error (conservative),
+    fewer one that claims more than it knows. Rows with a non-finite error or a covariance that is not positive
+    definite are left out (``n`` counts the rest).
+    """
+    e = np.column_stack([np.asarray(east_error_m, dtype=float).reshape(-1),
+                         np.asarray(north_error_m, dtype=float).reshape(-1)])
+    C = np.asarray(covariances, dtype=float).reshape(-1, 2, 2)
+    det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0]
+    ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(C), axis=(1, 2)) & (C[:, 0, 0] > 0) & (det > 0)
+    if not ok.any():
+        return {"n": 0, "nees_mean": None, "nees_median": None, **{f"inside_{k}": None for k in ELLIPSE_CHI2}}
+    e, C = e[ok], C[ok]
+    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(C), e)
+    return {"n": int(nees.size), "nees_mean": float(np.mean(nees)), "nees_median": float(np.median(nees)),
+            **{f"inside_{k}": float(np.mean(nees <= chi2)) for k, chi2 in ELLIPSE_CHI2.items()}}
+
+
+def score_fix_covariances(fixes_path: Path, dataset, videos: list[int], max_gps_gap_s: float = 3.0) -> dict:
+    """``covariance_consistency`` of a fixes CSV against the GPS, per video, overall and per split.
+
+    The CSV has ``FIX_COLUMNS``: the published fixes with their east-north covariance (the demo's ``fixes.csv``).
+    """
+    rows = []
+    with Path(fixes_path).open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        missing = [c for c in FIX_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise DataError(f"{fixes_path}: missing column(s) {', '.join(missing)}")
+        for row in reader:
+            try:
+                rows.append([float(row[c]) for c in FIX_COLUMNS])
+            except ValueError:
+                continue
+    table = np.array(rows, dtype=float).reshape(-1, len(FIX_COLUMNS))
+    video = table[:, 0].astype(int)
+    predictions = Predictions(video, table[:, 1], table[:, 2], table[:, 3], 0)
+    scored = score_predictions(predictions, dataset, dataset.gps_track(), max_gps_gap_s)
+    east, north = geodesy.gps_to_local(scored.lat, scored.lon, np.nan_to_num(scored.gt_lat),
+                                       np.nan_to_num(scored.gt_lon))
+    east = np.where(scored.has_truth, east, np.nan)
+    north = np.where(scored.has_truth, north, np.nan)
+    cov = np.stack([np.column_stack([table[:, 4], table[:, 5]]), np.column_stack([table[:, 5], table[:, 6]])], 1)
+
+    def block(selected) -> dict:
+        sel = np.isin(video, list(selected))
+        return covariance_consistency(east[sel], north[sel], cov[sel])
+
+    summary = {"per_video": {str(v): block([v]) for v in videos}, "overall": block(videos), "splits": {}}
+    for name, split_videos in SPLITS.items():
+        if all(v in videos for v in split_videos):
+            summary["splits"][name] = block(split_videos)
+    return summary
+
+
+def format_covariance_line(name: str, block: dict) -> str:
+    """One line: the share of errors inside their 68 / 95 / 99 % ellipses."""
+    if not block["n"]:
+        return f"{name}: no fix with a truth to compare"
+    return (f"{name}: {100 * block['inside_68']:.0f} / {100 * block['inside_95']:.0f} / "
+            f"{100 * block['inside_99']:.0f} % of {block['n']} errors inside their 68 / 95 / 99 % ellipses "
+            f"(mean NEES {block['nees_mean']:.2f}; honest: 68 / 95 / 99 %, 2)")
+
+
 def format_table(summary: dict) -> str:
     """The short table printed at the end of a run."""
 
