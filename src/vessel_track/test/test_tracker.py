@@ -10,6 +10,7 @@ from vessel_track.tracker import (
     MultiTargetTracker,
     TrackerConfig,
     TrackStatus,
+    load_tracker_config,
     process_noise_matrix,
     transition_matrix,
 )
@@ -375,6 +376,29 @@ def test_config_validation_names_the_field():
         TrackerConfig.from_dict({"gate": 3})
     config = TrackerConfig.from_dict({"gate_px": 80.0, "min_hits": 2})
     assert config.gate_px == 80.0 and TrackerConfig.from_dict(config.to_dict()) == config
+
+
+def test_the_pipeline_tracks_with_the_parameter_files_tracker_settings(tmp_path):
+    """What the tracker node declares from a parameter file, the ROS-free pipeline reads from it too."""
+    from pathlib import Path
+
+    path = tmp_path / "graph.yaml"
+    path.write_text("/**:\n  ros__parameters: {use_sim_time: false, gate_px: 50.0}\n"
+                    "tracker:\n  ros__parameters:\n    input_topic: /x\n    qos_depth: 5\n    min_hits: 2\n"
+                    "    max_coast_s: 12.0\nfuser:\n  ros__parameters: {min_hits: 9}\n")
+    config = load_tracker_config(path)
+    assert (config.min_hits, config.max_coast_s, config.gate_px) == (2, 12.0, 50.0)
+    assert config.measurement_std_px == TrackerConfig().measurement_std_px and load_tracker_config(None) == \
+        TrackerConfig()
+    path.write_text("tracker:\n  ros__parameters: {min_hits: 0}\n")
+    with pytest.raises(DataError, match=r"graph.yaml: .*min_hits"):
+        load_tracker_config(path)
+    with pytest.raises(DataError, match="no such|cannot read"):
+        load_tracker_config(tmp_path / "absent.yaml")
+    root = Path(__file__).resolve().parents[3] / "config"
+    if (root / "parts" / "tracker.yaml").is_file():
+        assert load_tracker_config(root / "parts" / "tracker.yaml") == TrackerConfig()   # the node's defaults
+        load_tracker_config(root / "aitas.yaml")
 
 
 def test_min_hits_one_confirms_at_once():

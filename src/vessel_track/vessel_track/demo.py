@@ -358,8 +358,9 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
                                hand_boxes: bool = False) -> Path:
     """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
 
-    The same tracker and fuser cores the nodes run, then the trajectory joining, scoring and smoothing over
-    the whole video that only recorded data allows (``vessel_track.pipeline``, mode ``offline``). With
+    The same tracker and fuser cores the nodes run, with the parameter file's settings, then the trajectory
+    joining, scoring and smoothing over the whole video that only recorded data allows (``vessel_track.pipeline``,
+    mode ``offline``). With
     ``hand_boxes`` the boxes are read as the fuser node read them (``FuserSettings.for_hand_boxes``).
     """
     import numpy as np
@@ -368,10 +369,12 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     from vessel_detect.bag_io import BagReader, ns_of_stamp
     from vessel_track.fuser_settings import load_fuser_settings
     from vessel_track.pipeline import DetectionFrame, PipelineConfig, run_video, write_predictions_csv
+    from vessel_track.tracker import load_tracker_config
 
     camera = load_camera_yaml(calibration)
     settings = load_fuser_settings(params_file)
-    config = PipelineConfig(mode="offline", settings=settings.for_hand_boxes() if hand_boxes else settings)
+    config = PipelineConfig(mode="offline", tracker=load_tracker_config(params_file),
+                            settings=settings.for_hand_boxes() if hand_boxes else settings)
     results = []
     for run in runs:
         frames = []

@@ -240,7 +240,7 @@ class PipelineConfig:
     """``measured`` (the associated detection) or ``filtered`` (the tracker's box); None: the fuser parameter
     ``fusion.screen_source`` of ``settings``, which is what the fuser node uses."""
     max_coast_s: float = 12.0
-    tracker: object = None   # TrackerConfig; None: the tracker's defaults
+    tracker: object = None   # TrackerConfig (the command line: the parameter file's); None: the tracker's defaults
     settings: FuserSettings = field(default_factory=FuserSettings)
 
     def __post_init__(self) -> None:
@@ -535,7 +535,10 @@ def main(argv: list[str] | None = None) -> int:
                 frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
                                             args.appearance_combine, args.appearance_min, camera,
                                             args.appearance_nested)
-        config = PipelineConfig(args.mode, args.screen_source, args.max_coast, None, settings)
+        from vessel_track.tracker import load_tracker_config
+
+        config = PipelineConfig(args.mode, args.screen_source, args.max_coast, load_tracker_config(params_path),
+                                settings)
         if args.leave_one_out:
             results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config,
                                           camera.box_anchor)

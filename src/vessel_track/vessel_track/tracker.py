@@ -215,6 +215,32 @@ class TrackerConfig:
         return asdict(self)
 
 
+def load_tracker_config(path, node: str = "tracker") -> TrackerConfig:
+    """The tracker settings of a parameter YAML's ``node`` (else ``/**``) block; defaults when ``path`` is None.
+
+    What the tracker node would declare from the same file, so the ROS-free pipeline (and the demo's offline pass)
+    tracks with the settings the graph ran with. The node's own keys (topics, QoS, classes) are not tracker
+    settings and are skipped; a bad value is a DataError naming it.
+    """
+    if path is None:
+        return TrackerConfig()
+    from vessel_calib.errors import CalibrationError
+    from vessel_calib.params import read_params_yaml
+
+    try:
+        blocks = read_params_yaml(path)
+    except CalibrationError as error:
+        raise DataError(str(error)) from None
+    known = {f.name for f in fields(TrackerConfig)}
+    values: dict = {}
+    for name in ("/**", node, f"/{node}"):
+        values.update({k: v for k, v in blocks.get(name, {}).items() if k in known})
+    try:
+        return TrackerConfig.from_dict(values)
+    except (DataError, TypeError, ValueError) as error:
+        raise DataError(f"{path}: {error}") from None
+
+
 @dataclass
 class TrackerCounters:
     """Counts of what the tracker saw and did, for diagnostics; never reset except by ``reset_counters``."""
