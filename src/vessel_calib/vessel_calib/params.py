@@ -351,6 +351,15 @@ def read_params_yaml(path) -> dict:
     return out
 
 
+def node_blocks(blocks: Mapping[str, Mapping[str, Any]], node: str) -> list[dict]:
+    """The blocks of ``read_params_yaml`` that apply to ``node``, weakest first.
+
+    ``/**``, then the node's own (``node`` or ``/node``): updating a dict with them in order gives the
+    node-specific value precedence, as ROS does.
+    """
+    return [dict(blocks[name]) for name in (ALL_NODES, node, f"/{node}") if name in blocks]
+
+
 def camera_block(params: Mapping[str, Any]) -> dict | None:
     """The ``camera`` parameters of one node's block, nested (``camera: {...}``) or flattened (``camera.H``)."""
     nested = params.get("camera")

@@ -256,15 +256,15 @@ def load_params_file(path: str | Path | None, node_name: str = NODE_NAME) -> tup
     """
     if not path:
         return default_values(), None
-    from vessel_calib.params import camera_block, read_params_yaml
+    from vessel_calib.params import camera_block, node_blocks, read_params_yaml
 
     blocks = read_params_yaml(path)
     overrides: dict[str, Any] = {k: v for k, v in (blocks.get("/**") or {}).items() if k in _BY_NAME}
     for name in (node_name, f"/{node_name}"):
         overrides.update(blocks.get(name) or {})
     camera = None
-    for name in ("/**", node_name, f"/{node_name}"):
-        block = camera_block(blocks.get(name) or {})
+    for params in node_blocks(blocks, node_name):
+        block = camera_block(params)
         if block is not None:
             from vessel_calib.camera_model import CameraModel
 

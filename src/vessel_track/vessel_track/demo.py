@@ -360,8 +360,8 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
 
     The same tracker and fuser cores the nodes run, with the parameter file's settings, then the trajectory
     joining, scoring and smoothing over the whole video that only recorded data allows (``vessel_track.pipeline``,
-    mode ``offline``). With
-    ``hand_boxes`` the boxes are read as the fuser node read them (``FuserSettings.for_hand_boxes``).
+    mode ``offline``). With ``hand_boxes`` the boxes are read as the fuser node read them
+    (``FuserSettings.for_hand_boxes``).
     """
     import numpy as np
 

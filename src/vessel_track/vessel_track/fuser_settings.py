@@ -190,11 +190,9 @@ def load_fuser_settings(path: Path | None, node: str = "fuser") -> FuserSettings
     """Settings from the ``node`` (else ``/**``) block of a parameter YAML; defaults when ``path`` is None."""
     if path is None:
         return FuserSettings()
-    from vessel_calib.params import read_params_yaml
+    from vessel_calib.params import node_blocks, read_params_yaml
 
-    blocks = read_params_yaml(path)
     merged: dict = {}
-    for name in ("/**", node, f"/{node}"):
-        if name in blocks:
-            merged.update(nest(blocks[name]))
+    for block in node_blocks(read_params_yaml(path), node):
+        merged.update(nest(block))
     return FuserSettings.from_params(merged)

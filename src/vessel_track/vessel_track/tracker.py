@@ -225,7 +225,7 @@ def load_tracker_config(path, node: str = "tracker") -> TrackerConfig:
     if path is None:
         return TrackerConfig()
     from vessel_calib.errors import CalibrationError
-    from vessel_calib.params import read_params_yaml
+    from vessel_calib.params import node_blocks, read_params_yaml
 
     try:
         blocks = read_params_yaml(path)
@@ -233,8 +233,8 @@ def load_tracker_config(path, node: str = "tracker") -> TrackerConfig:
         raise DataError(str(error)) from None
     known = {f.name for f in fields(TrackerConfig)}
     values: dict = {}
-    for name in ("/**", node, f"/{node}"):
-        values.update({k: v for k, v in blocks.get(name, {}).items() if k in known})
+    for block in node_blocks(blocks, node):
+        values.update({k: v for k, v in block.items() if k in known})
     try:
         return TrackerConfig.from_dict(values)
     except (DataError, TypeError, ValueError) as error:
