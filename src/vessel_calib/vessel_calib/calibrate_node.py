@@ -83,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--pairs-csv", help="CSV of labelled pairs: x,y,lat,lon or x,y,t (with --gps)")
     src.add_argument("--gps", help="GPS fixes (CSV or GPX) to look up the position at each pair's t")
     src.add_argument("--max-gap-s", type=float, default=3.0, help="longest GPS gap to interpolate across (s)")
+    src.add_argument("--water-level", metavar="CSV",
+                     help="water level (tide) against time (utc or utc_s, level_m): the fit allows for the camera's "
+                          "height above the sea changing and writes camera.water_level_m; the fuser then needs the "
+                          "same file as water_level.file")
     src.add_argument("--camera-lat", type=float, help="camera latitude (degrees; default from camera.json)")
     src.add_argument("--camera-lon", type=float, help="camera longitude (degrees; default from camera.json)")
     src.add_argument("--image-size", help="WIDTHxHEIGHT of the labelled frames (default 1280x720 or camera.json)")
@@ -225,9 +229,10 @@ def _column(fields_lower: dict[str, str], names) -> str | None:
 
 
 def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = PAPER_BOX_ANCHOR):
-    """Labelled pairs from a CSV -> (screen (N,2), gps (N,2), dropped rows without GPS, notes).
+    """Labelled pairs from a CSV -> (screen (N,2), gps (N,2), notes, stamps (N,)).
 
     Box corners become the box's horizontal centre, ``anchor`` of the way down it; x,y columns are used as given.
+    ``stamps`` are the time column's Unix seconds (NaN without one: needed only for ``--water-level``).
     """
     import numpy as np
 
@@ -251,6 +256,7 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
     latcol, loncol = _column(lower, _LAT_NAMES), _column(lower, _LON_NAMES)
     tcol = _column(lower, _T_NAMES)
     use_time = latcol is None or loncol is None
+    stamps = []
     if use_time and (tcol is None or gps_path is None):
         raise DataError(
             f"{path}: missing columns lat,lon (or a time column t plus --gps FIXES); found: {', '.join(fields)}")
@@ -272,12 +278,14 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
             x, y = num(i, xcol), num(i, ycol)
         else:
             x, y = box_points([num(i, lower[c]) for c in ("x1", "y1", "x2", "y2")], anchor)[0]
-        if use_time:
+        t = math.nan
+        if tcol is not None:
             try:
                 t = parse_time(rows[i].get(tcol, ""))
             except ValueError:
                 raise DataError(f"{path}, row {i + 2}, column '{tcol}': expected epoch seconds or ISO-8601 time, "
                                 f"got {rows[i].get(tcol)!r}") from None
+        if use_time:
             lat, lon, ok = track.interpolate(t, max_gap_s=max_gap_s)
             if not ok:
                 dropped += 1
@@ -286,12 +294,20 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
             lat, lon = num(i, latcol), num(i, loncol)
         screen.append((x, y))
         gps.append((lat, lon))
+        stamps.append(t)
     notes = []
     if dropped:
         notes.append(f"{dropped} pair(s) dropped: no GPS fix within {max_gap_s:g} s of their time")
     if track is not None and track.skipped_rows:
         notes.append(f"{track.skipped_rows} unusable GPS row(s) skipped in {gps_path}")
-    return np.array(screen, dtype=float).reshape(-1, 2), np.array(gps, dtype=float).reshape(-1, 2), notes
+    return (np.array(screen, dtype=float).reshape(-1, 2), np.array(gps, dtype=float).reshape(-1, 2), notes,
+            np.array(stamps, dtype=float))
+
+
+def _utc(stamp: float) -> str:
+    import datetime
+
+    return datetime.datetime.fromtimestamp(stamp, datetime.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
 def _picture_frame(ds: Dataset | None, videos) -> Path | None:
@@ -354,12 +370,13 @@ def run(args) -> int:
     notes: list[str] = []
     videos = None
     if args.pairs_csv:
-        screen, gps, notes = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s, args.box_anchor)
+        screen, gps, notes, stamps = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s, args.box_anchor)
         source = f"pairs {args.pairs_csv}"
         name = Path(args.pairs_csv).stem
     else:
         videos = parse_videos(args.videos or DEFAULT_TRAIN_VIDEOS)
-        screen, gps = ds.calibration_pairs(videos, anchor=args.box_anchor, label_passes=args.label_passes)
+        screen, gps, stamps = ds.calibration_pairs(videos, anchor=args.box_anchor, label_passes=args.label_passes,
+                                                   with_stamps=True)
         source = f"{ds.path} videos {args.videos or DEFAULT_TRAIN_VIDEOS} ({args.label_passes} labels)"
         name = ds.path.name
         if len(screen) == 0:
@@ -373,25 +390,49 @@ def run(args) -> int:
         if args.pairs > len(screen):
             raise CalibrationError(f"--pairs {args.pairs} but only {len(screen)} pairs are available")
         idx = np.sort(np.random.default_rng(args.seed).choice(len(screen), size=args.pairs, replace=False))
-        screen, gps = screen[idx], gps[idx]
+        screen, gps, stamps = screen[idx], gps[idx], stamps[idx]
         source += f", random draw of {args.pairs} (seed {args.seed})"
 
     options = _fit_options(args)
-    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor=args.box_anchor)
+    water_level = None
+    levels = None
+    if args.water_level:
+        from vessel_calib.water_level import load_water_level
+
+        water_level = load_water_level(args.water_level)
+        if not np.all(np.isfinite(stamps)):
+            raise CalibrationError("--water-level needs the time of every pair: give the pairs CSV a time column t "
+                                   "(epoch seconds or ISO-8601 UTC)")
+        levels = water_level.level_at(stamps)
+        if not np.all(np.isfinite(levels)):
+            raise CalibrationError(f"{int(np.sum(~np.isfinite(levels)))} pair(s) fall outside the water-level file "
+                                   f"{water_level.source} ({_utc(water_level.start_s)} to {_utc(water_level.end_s)});"
+                                   " extend the file to cover them")
+        source += f", water level from {args.water_level}"
+    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor=args.box_anchor,
+                       water_levels=levels)
 
     print(f"calibrate: fitted on {source}: {len(screen)} of {available} pairs", flush=True)
     for note in notes:
         print(f"  note: {note}")
     print("\n".join(result.report_lines()), flush=True)
+    if water_level is not None:
+        geometry = result.model.pinhole()
+        print(f"  water level {result.model.water_level_m:.3f} m (pairs {levels.min():.3f} to {levels.max():.3f} m); "
+              f"camera {geometry.height_m:.2f} m above it, focal {geometry.focal_px:.0f} px, nadir "
+              f"({geometry.nadir_xy[0]:.1f}, {geometry.nadir_xy[1]:.1f}) m", flush=True)
 
     eval_pairs = None
     if ds is not None and (args.evaluate_on or args.draws):
         eval_videos = parse_videos(args.evaluate_on or DEFAULT_EVAL_VIDEOS)
-        eval_pairs = ds.calibration_pairs(eval_videos, anchor=args.box_anchor)
+        *eval_pairs, eval_stamps = ds.calibration_pairs(eval_videos, anchor=args.box_anchor, with_stamps=True)
         if len(eval_pairs[0]) == 0:
             raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {eval_videos}")
         spec = args.evaluate_on or DEFAULT_EVAL_VIDEOS
-        print("\n".join(evaluate(result.model, *eval_pairs).lines(
+        eval_levels = None if water_level is None else water_level.level_at(eval_stamps)
+        if eval_levels is not None and not np.all(np.isfinite(eval_levels)):
+            raise CalibrationError(f"videos {spec} fall outside the water-level file {water_level.source}")
+        print("\n".join(evaluate(result.model, *eval_pairs, eval_levels).lines(
             f"evaluation on videos {spec} (box points {args.box_anchor:g} of the way down)")))
         try:
             paper = ds.camera_model()
@@ -431,7 +472,10 @@ def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
         f"box_anchor {result.model.box_anchor:g}: H maps the point {result.model.box_anchor:g} of the way down a "
         "vessel's box (0 top, 0.5 centre) to its GPS; the fuser reads boxes there.",
         "heading_deg, horizon_* are derived from H (informational).",
-    ])
+    ] + ([f"water_level_m {result.model.water_level_m:.4f}: H belongs to the sea at this level of the water-level "
+          f"file; height_m {result.model.height_m:.3f}: the camera's height above it (derived from H); the fuser "
+          "corrects ranges for the tide with the same file (water_level.file)."]
+         if math.isfinite(result.model.water_level_m) else []))
 
 
 _WRITTEN: list[Path] = []

@@ -472,15 +472,23 @@ def pair_weights(world: np.ndarray, far_weight: float) -> np.ndarray:
 
 
 def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(1280, 720), center=None,
-              options: FitOptions | None = None, box_anchor: float = PAPER_BOX_ANCHOR) -> CalibrationResult:
+              options: FitOptions | None = None, box_anchor: float = PAPER_BOX_ANCHOR,
+              water_levels=None) -> CalibrationResult:
     """Fit a CameraModel from labelled pairs: ``screen`` (N,2) pixels, ``gps`` (N,2) lat/lon degrees.
 
     ``box_anchor`` says where down its box each screen point was taken (0.5: box centres); the model carries
     it, so boxes are read the same way when it is used.
 
+    ``water_levels`` (N,) metres: the water level at each pair's instant (``vessel_calib.water_level``). The
+    model is then fitted for their mean level, each pair moved to where it would have been seen at that level
+    (``CameraModel.from_water_level``, with the camera height H implies; three rounds), and carries that level.
+
     Raises CalibrationError for unusable input (see ``validate_pairs``) and when a pair lands on or above the
     fitted horizon (a label in the sky, or a wrong GPS match): nothing is returned then.
     """
+    if water_levels is not None:
+        return _calibrate_at_water_levels(screen, gps, camera_lat, camera_lon, image_size, center, options,
+                                          box_anchor, water_levels)
     options = (options or FitOptions()).checked()
     width, height = (int(v) for v in image_size)
     center_arr = np.array(center if center is not None else (width / 2.0, height / 2.0), dtype=float)
@@ -540,26 +548,84 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
         figures=figures, k1_scan=(k1_values, losses), scan_k1=k1_scan_best, nfev=nfev)
 
 
-def calibrate_from_labels(dataset, videos, box_anchor: float, label_passes: str = "primary") -> CameraModel:
+#: Rounds of (camera height from H, pairs moved to the reference water level, refit).
+WATER_LEVEL_ROUNDS = 3
+
+
+def _pair_levels(levels, n: int) -> np.ndarray:
+    arr = np.asarray(levels, dtype=float).ravel()
+    if arr.size != n:
+        raise CalibrationError(f"{arr.size} water levels for {n} pairs: give one level per pair")
+    if not np.all(np.isfinite(arr)):
+        bad = np.flatnonzero(~np.isfinite(arr))
+        raise CalibrationError(f"no water level for {bad.size} pair(s) (first #{int(bad[0])}): their times are "
+                               "outside the water-level file; extend the file or drop those videos")
+    return arr
+
+
+def _calibrate_at_water_levels(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor,
+                               water_levels) -> CalibrationResult:
+    screen = _as_pairs(screen, "screen points")
+    gps = _as_pairs(gps, "GPS positions", len(screen))
+    levels = _pair_levels(water_levels, len(screen))
+    reference = float(np.mean(levels))
+    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor)
+    xw, yw = geodesy.gps_to_local(gps[:, 0], gps[:, 1], camera_lat, camera_lon)
+    for _ in range(WATER_LEVEL_ROUNDS):
+        model = _with_water_level(result.model, reference)
+        xr, yr = model.from_water_level(xw, yw, levels)
+        lat, lon = geodesy.local_to_gps(xr, yr, camera_lat, camera_lon)
+        result = calibrate(screen, np.column_stack([lat, lon]), camera_lat, camera_lon, image_size, center,
+                           options, box_anchor)
+    model = _with_water_level(result.model, reference)
+    xs, ys, _ = _reprojected(model, gps, levels)
+    return replace(result, model=model, gps=gps, world=np.column_stack([xw, yw]),
+                   reproj_px=np.column_stack([xs, ys]) - screen,
+                   backproj_m=_backproj_errors(model, screen, gps, levels),
+                   figures=evaluate(model, screen, gps, levels))
+
+
+def _with_water_level(model: CameraModel, level: float) -> CameraModel:
+    return CameraModel(model.H, model.K1, model.center, model.image_size, model.camera_lat, model.camera_lon,
+                       model.box_anchor, water_level_m=level)
+
+
+def calibrate_from_labels(dataset, videos, box_anchor: float, label_passes: str = "primary",
+                          water_level=None) -> CameraModel:
     """The camera fitted on a data folder's labelled boxes of ``videos``, each read ``box_anchor`` of the way down.
 
     One place that reads the pairs and fits with the same anchor (the leave-one-video-out fits of the pipeline and
-    of the fusion's cue noise); ``dataset`` is a ``vessel_calib.dataset.Dataset``.
+    of the fusion's cue noise); ``dataset`` is a ``vessel_calib.dataset.Dataset``, ``water_level`` a
+    ``WaterLevelTable`` (None: the tide is ignored).
     """
-    screen, gps = dataset.calibration_pairs(videos, anchor=box_anchor, label_passes=label_passes)
+    screen, gps, stamps = dataset.calibration_pairs(videos, anchor=box_anchor, label_passes=label_passes,
+                                                    with_stamps=True)
+    levels = None if water_level is None else water_level.level_at(stamps)
     return calibrate(screen, gps, dataset.camera_lat, dataset.camera_lon, dataset.image_size, dataset.center,
-                     box_anchor=box_anchor).model
+                     box_anchor=box_anchor, water_levels=levels).model
 
 
 # --------------------------------------------------------------------------- evaluation
-def _backproj_errors(model: CameraModel, screen, gps) -> np.ndarray:
-    lat, lon, valid = model.screen_to_gps(screen[:, 0], screen[:, 1])
+def _backproj_errors(model: CameraModel, screen, gps, levels=None) -> np.ndarray:
+    xw, yw, valid = model.screen_to_world(screen[:, 0], screen[:, 1])
+    if levels is not None:
+        xw, yw = model.to_water_level(xw, yw, levels)
+    lat, lon = model.world_to_gps(xw, yw)
     err = geodesy.haversine_m(lat, lon, gps[:, 0], gps[:, 1])
     return np.where(valid, err, np.inf)
 
 
-def evaluate(model: CameraModel, screen, gps) -> Figures:
+def _reprojected(model: CameraModel, gps, levels=None):
+    xw, yw = model.gps_to_world(gps[:, 0], gps[:, 1])
+    if levels is not None:
+        xw, yw = model.from_water_level(xw, yw, levels)
+    return model.world_to_screen(xw, yw)
+
+
+def evaluate(model: CameraModel, screen, gps, levels=None) -> Figures:
     """Reprojection (GPS -> screen vs labels) and back-projection (labels -> GPS vs GPS) figures.
+
+    ``levels`` (m, per pair): the water level at each pair's instant, for a model with a water level.
 
     Back-projected errors of pairs on/above the horizon count as infinite (they produce no position) and are
     counted in ``backproj_invalid``; ``backproj_per_100m`` is the paper's least-squares slope through the origin,
@@ -569,10 +635,12 @@ def evaluate(model: CameraModel, screen, gps) -> Figures:
     gps = _as_pairs(gps, "GPS positions", len(screen))
     if len(screen) == 0:
         raise CalibrationError("no pairs to evaluate on")
-    xs, ys, in_front = model.gps_to_screen(gps[:, 0], gps[:, 1])
+    if levels is not None:
+        levels = _pair_levels(levels, len(screen))
+    xs, ys, in_front = _reprojected(model, gps, levels)
     reproj = np.hypot(xs - screen[:, 0], ys - screen[:, 1])
     reproj = np.where(in_front, reproj, np.inf)
-    back = _backproj_errors(model, screen, gps)
+    back = _backproj_errors(model, screen, gps, levels)
     valid = np.isfinite(back)
     dist = geodesy.haversine_m(model.camera_lat, model.camera_lon, gps[:, 0], gps[:, 1])
     per100 = 100.0 * np.sum(back[valid] * dist[valid]) / np.sum(dist[valid] ** 2) if valid.any() else math.inf

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -50,6 +51,26 @@ def box_points(boxes_xyxy, anchor: float) -> np.ndarray:
     return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
 
 
+@dataclass(frozen=True)
+class PinholeGeometry:
+    """The pinhole camera a sea-plane homography implies (``CameraModel.pinhole``).
+
+    focal_px: focal length, ideal pixels. height_m: camera height above the water. nadir_xy: the sea point below
+    the camera, world metres (near (0, 0) when the camera's GPS position is right). skew: |cos| of the angle
+    between H's first two rotation columns after the fit (0 for an exact pinhole), aspect their length ratio (1).
+    """
+
+    focal_px: float
+    height_m: float
+    nadir_xy: tuple[float, float]
+    skew: float
+    aspect: float
+
+
+def _same_number(a: float, b: float) -> bool:
+    return a == b or (math.isnan(a) and math.isnan(b))
+
+
 def _arr(value) -> np.ndarray:
     return np.asarray(value, dtype=float)
 
@@ -72,6 +93,9 @@ class CameraModel:
             ``box_anchor`` of the way down the box (0 top, 0.5 centre as in the paper, 1 bottom). A property of
             the calibration: H was fitted on that point of the labelled boxes, so every box must be read the
             same way (``box_reference_points``).
+        water_level_m: the water level H belongs to, in the datum of a water-level table
+            (``vessel_calib.water_level``); NaN: the calibration ignored the tide, ``at_water_level`` refuses.
+        height_m: the camera's height above the water at ``water_level_m``; NaN: derived from H (``pinhole``).
 
     Raises:
         CalibrationError: non-finite or singular H, absurd K1, bad image size or centre, invalid position.
@@ -80,12 +104,19 @@ class CameraModel:
 
     __slots__ = (
         "_H", "_Hinv", "_K1", "_center", "_image_size", "_camera_lat", "_camera_lon",
-        "_horizon", "_r_fold", "_rs_max", "_heading", "_box_anchor",
+        "_horizon", "_r_fold", "_rs_max", "_heading", "_box_anchor", "_water_level_m", "_height_m",
     )
 
     def __init__(self, H, K1: float = 0.0, center=(640.0, 360.0), image_size=(1280, 720),
                  camera_lat: float | None = None, camera_lon: float | None = None,
-                 box_anchor: float = PAPER_BOX_ANCHOR):
+                 box_anchor: float = PAPER_BOX_ANCHOR, water_level_m: float = math.nan, height_m: float = math.nan):
+        for name, value in (("water_level_m", water_level_m), ("height_m", height_m)):
+            if not _is_number(value) or math.isinf(float(value)):
+                raise CalibrationError(f"{name} must be a finite number of metres (or NaN: unknown), got {value!r}")
+        if math.isfinite(float(height_m)) and float(height_m) <= 0:
+            raise CalibrationError(f"height_m is the camera's height above the water and must be > 0, got {height_m!r}")
+        self._water_level_m = float(water_level_m)
+        self._height_m = float(height_m)
         if not _is_number(box_anchor) or not 0.0 <= float(box_anchor) <= 1.0:
             raise CalibrationError(
                 f"box_anchor must be a number in [0, 1] (0 box top, 0.5 centre, 1 bottom), got {box_anchor!r}")
@@ -208,6 +239,16 @@ class CameraModel:
     def camera_lon(self) -> float | None:
         """Camera longitude (degrees), origin of the world frame."""
         return self._camera_lon
+
+    @property
+    def water_level_m(self) -> float:
+        """The water level H belongs to (NaN: calibrated without one)."""
+        return self._water_level_m
+
+    @property
+    def height_m(self) -> float:
+        """The camera's height above the water at ``water_level_m``: the given value, else derived from H."""
+        return self._height_m if math.isfinite(self._height_m) else self.pinhole().height_m
 
     @property
     def box_anchor(self) -> float:
@@ -481,6 +522,90 @@ class CameraModel:
         J = Jh @ Jd_inv
         return np.where(valid[..., None, None], J, np.nan)
 
+    # ----------------------------------------------------------------- pinhole geometry and the tide
+    def pinhole(self) -> PinholeGeometry:
+        """The pinhole camera behind H: focal length, height above the water and the point below the camera.
+
+        H = K [r1 r2 t] for a camera with square pixels and its principal point at the distortion centre:
+        the focal length is the one that makes r1 and r2 orthogonal and of equal length (least squares of the
+        two conditions), the rest follows. CalibrationError if no positive focal length fits (a homography no
+        upright pinhole camera above a plane can produce).
+        """
+        cx, cy = self._center
+        H = self._H
+        a = H[0] - cx * H[2]
+        b = H[1] - cy * H[2]
+        c = H[2]
+        p, q = a[0] * a[1] + b[0] * b[1], c[0] * c[1]
+        r, s = a[0] ** 2 + b[0] ** 2 - a[1] ** 2 - b[1] ** 2, c[0] ** 2 - c[1] ** 2
+        denom = p * p + r * r
+        inv_f2 = -(p * q + r * s) / denom if denom > 0 else math.nan
+        if not (math.isfinite(inv_f2) and inv_f2 > 0):
+            raise CalibrationError("H is not the view of a pinhole camera over the sea plane (no positive focal "
+                                   "length makes its columns orthogonal): give the camera height (height_m) "
+                                   "or re-run the calibration")
+        f = 1.0 / math.sqrt(inv_f2)
+        M = np.vstack([a / f, b / f, c])
+        n1, n2 = np.linalg.norm(M[:, 0]), np.linalg.norm(M[:, 1])
+        scale = -1.0 / math.sqrt(n1 * n2)  # z_p < 0 in front: the camera's z is -z_p
+        r1, r2, t = M[:, 0] * scale, M[:, 1] * scale, M[:, 2] * scale
+        u, _, vt = np.linalg.svd(np.column_stack([r1, r2, np.cross(r1, r2)]))
+        rotation = u @ vt
+        centre = -rotation.T @ t
+        return PinholeGeometry(focal_px=float(f), height_m=float(abs(centre[2])),
+                               nadir_xy=(float(centre[0]), float(centre[1])),
+                               skew=float(abs(r1 @ r2) / (np.linalg.norm(r1) * np.linalg.norm(r2))),
+                               aspect=float(n1 / n2))
+
+    def water_level_scale(self, level_m):
+        """The scale k = h / (h - rise) for water ``rise`` = ``level_m`` - ``water_level_m`` higher than at calibration.
+
+        A sea point at distance r from below the camera looks, at that level, like the point at k r did at the
+        calibration's level (similar triangles): ranges read through H must be divided by k.
+        """
+        if not math.isfinite(self._water_level_m):
+            raise CalibrationError("this calibration has no water level (camera.water_level_m): it cannot be "
+                                   "corrected for the tide; re-run calibrate with --water-level FILE.csv")
+        height = self.height_m
+        rise = np.asarray(level_m, dtype=float) - self._water_level_m
+        above = height - rise
+        if not np.all(np.isfinite(above) & (above > 0.2 * height)):
+            worst = float(np.nanmax(np.abs(rise))) if np.any(np.isfinite(rise)) else math.nan
+            raise CalibrationError(f"water level {worst:+.2f} m from the calibration's would put the camera "
+                                   f"(h = {height:.2f} m) at or under the water: check the water-level file's "
+                                   "units (metres) and datum")
+        k = height / above
+        return float(k) if k.ndim == 0 else k
+
+    def to_water_level(self, xw, yw, level_m):
+        """Sea points back-projected through H (at the calibration's water level) -> where they are at ``level_m``."""
+        k = self.water_level_scale(level_m)
+        nx, ny = self.pinhole().nadir_xy
+        return nx + (_arr(xw) - nx) / k, ny + (_arr(yw) - ny) / k
+
+    def from_water_level(self, xw, yw, level_m):
+        """Sea points at ``level_m`` -> the points H maps to the same pixels (the inverse of ``to_water_level``)."""
+        k = self.water_level_scale(level_m)
+        nx, ny = self.pinhole().nadir_xy
+        return nx + (_arr(xw) - nx) * k, ny + (_arr(yw) - ny) * k
+
+    def at_water_level(self, level_m: float) -> CameraModel:
+        """The same camera when the water is at ``level_m``: H composed with the scaling about the camera's nadir.
+
+        Every method of the result (screen to world, depth, Jacobians, horizon) is right for that level; the
+        horizon and the lens do not change. ``level_m`` equal to ``water_level_m`` returns this model.
+        """
+        level = float(level_m)
+        if level == self._water_level_m:
+            return self
+        k = self.water_level_scale(level)
+        geometry = self.pinhole()
+        nx, ny = geometry.nadir_xy
+        S = np.array([[k, 0.0, (1.0 - k) * nx], [0.0, k, (1.0 - k) * ny], [0.0, 0.0, 1.0]])
+        return CameraModel(self._H @ S, self._K1, self._center, self._image_size, self._camera_lat,
+                           self._camera_lon, self._box_anchor, water_level_m=level,
+                           height_m=self.height_m / k)
+
     # ----------------------------------------------------------------- parameters
     def to_params(self) -> dict:
         """The ``camera:`` parameter block: plain Python numbers, ROS-parameter friendly (doubles stay doubles).
@@ -503,6 +628,9 @@ class CameraModel:
             "center_y": float(cy),
             "box_anchor": float(self._box_anchor),
         })
+        if math.isfinite(self._water_level_m):
+            params["water_level_m"] = float(self._water_level_m)
+            params["height_m"] = float(self.height_m)
         # Derived, informational (recomputed from H on load); NaN is left out because ROS YAML cannot hold it.
         if math.isfinite(self._heading):
             params["heading_deg"] = float(self._heading)
@@ -536,6 +664,15 @@ class CameraModel:
                 raise CalibrationError(f"{where}.{key} must be finite, got {value!r}")
             return float(value)
 
+        def optional(key):
+            """A number that may be NaN (unknown) or absent."""
+            if key not in params:
+                return math.nan
+            value = params[key]
+            if not _is_number(value) or math.isinf(float(value)):
+                raise CalibrationError(f"{where}.{key} must be a number (or .nan: unknown), got {value!r}")
+            return float(value)
+
         def integer(key):
             value = number(key)
             if value != int(value) or value <= 0:
@@ -560,6 +697,8 @@ class CameraModel:
                 camera_lat=number("camera_lat"),
                 camera_lon=number("camera_lon"),
                 box_anchor=number("box_anchor") if "box_anchor" in params else PAPER_BOX_ANCHOR,
+                water_level_m=optional("water_level_m"),
+                height_m=optional("height_m"),
             )
         except CalibrationError as exc:
             raise CalibrationError(f"{where}: {exc}") from None
@@ -567,13 +706,15 @@ class CameraModel:
     def __repr__(self) -> str:
         return (f"CameraModel(H={self._H.tolist()!r}, K1={self._K1!r}, center={self._center!r}, "
                 f"image_size={self._image_size!r}, camera_lat={self._camera_lat!r}, camera_lon={self._camera_lon!r}, "
-                f"box_anchor={self._box_anchor!r})")
+                f"box_anchor={self._box_anchor!r}, water_level_m={self._water_level_m!r}, height_m={self._height_m!r})")
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, CameraModel):
             return NotImplemented
         return (np.array_equal(self._H, other._H) and self._K1 == other._K1 and self._center == other._center
                 and self._image_size == other._image_size and self._camera_lat == other._camera_lat
-                and self._camera_lon == other._camera_lon and self._box_anchor == other._box_anchor)
+                and self._camera_lon == other._camera_lon and self._box_anchor == other._box_anchor
+                and _same_number(self._water_level_m, other._water_level_m)
+                and _same_number(self._height_m, other._height_m))
 
     __hash__ = None  # type: ignore[assignment]

@@ -344,13 +344,14 @@ class Dataset:
         return out
 
     def calibration_pairs(self, videos=None, merge_same_frame: bool = True, anchor: float = PAPER_BOX_ANCHOR,
-                          label_passes: str = "primary") -> tuple[np.ndarray, np.ndarray]:
+                          label_passes: str = "primary", with_stamps: bool = False):
         """(screen (N,2) box reference points, gps (N,2) lat/lon) of labels with gps_ok=1 in ``videos``.
 
         The reference point is the box's horizontal centre, ``anchor`` of the way down it (0.5: the centre).
         Some frames carry two primary labels (from two labelling sources), and ``label_passes="all"`` adds the
         second labelling pass of the same frames: with ``merge_same_frame`` the labels of a frame are averaged
-        into one pair, so one instant counts once and the fit sees no duplicate GPS point.
+        into one pair, so one instant counts once and the fit sees no duplicate GPS point. ``with_stamps`` adds
+        a third array, each pair's stamp (Unix seconds).
         """
         if label_passes not in LABEL_PASSES:
             raise DataError(f"label passes must be one of {', '.join(LABEL_PASSES)}, got {label_passes!r}")
@@ -362,6 +363,8 @@ class Dataset:
         screen = np.array([np.mean([lab.reference_point(anchor) for lab in group], axis=0)
                            for group in groups.values()], dtype=float).reshape(-1, 2)
         gps = np.array([(group[0].lat, group[0].lon) for group in groups.values()], dtype=float).reshape(-1, 2)
+        if with_stamps:
+            return screen, gps, np.array([group[0].stamp for group in groups.values()], dtype=float)
         return screen, gps
 
     # ----------------------------------------------------------------- GPS

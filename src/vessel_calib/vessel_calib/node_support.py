@@ -120,6 +120,9 @@ CAMERA_PARAMETER_DESCRIPTIONS: dict[str, str] = {
     "heading_deg": "Camera heading implied by H, degrees from north (informational; checked against H).",
     "box_anchor": "Point of a vessel's box that H maps to its position: horizontal centre, this share of the way "
                   "down (0 top, 0.5 centre as in the paper, 1 bottom); written by calibrate.",
+    "water_level_m": "Water level (in the datum of the fuser's water_level.file) that H belongs to; NaN: calibrated "
+                     "without the tide (calibrate --water-level writes it).",
+    "height_m": "Camera height above the water at water_level_m, m; NaN: derived from H (calibrate writes it).",
 }
 
 
@@ -134,6 +137,8 @@ DEFAULT_CAMERA_PARAMETERS: dict[str, Any] = {
     "center_y": 360.0,
     "heading_deg": 76.475,
     "box_anchor": 0.5,
+    "water_level_m": math.nan,
+    "height_m": math.nan,
 }
 """The challenge camera, the paper's calibration with its sign typo corrected (see aitas/camera.json)."""
 

@@ -98,7 +98,8 @@ def test_params_round_trip_and_validation():
 def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     """Refitting into a parameter file replaces the distance model and cue statistics only.
 
-    The detector's ``anchor_offset`` and the weights mode stay; the cues are measured on hand boxes (offset 0).
+    The detector's ``anchor_offset`` and the weights mode stay; the cues are measured on hand boxes (offset 0),
+    each at the water level of its instant from the file's water-level table, as the shipped ones were.
     """
     import yaml
 
@@ -107,8 +108,9 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
 
     repo = Path(__file__).resolve().parents[3]
     out = tmp_path / "params.yaml"
+    tide = repo / "config" / "water_level_aitas.csv"
     out.write_text("fuser:\n  ros__parameters:\n    fusion: {anchor_offset: 0.05, weights_mode: paper}\n"
-                   "tracker:\n  ros__parameters: {min_hits: 2}\n")
+                   f"    water_level: {{file: {tide}}}\ntracker:\n  ros__parameters: {{min_hits: 2}}\n")
     calib = repo / "config" / "aitas_camera.yaml"
     assert main(["fit", "--data", str(data_dir), "--videos", "7-12", "--calib", str(calib), "--out", str(out)]) == 0
     settings = load_fuser_settings(out)

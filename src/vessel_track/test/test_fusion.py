@@ -268,3 +268,38 @@ def test_a_target_track_that_jumps_onto_another_vessel_stops_being_the_target():
         targets.append(out[0].is_target)
     assert all(targets[:60]) and not any(targets[65:])
     assert fuser.counts["identity_changed"] == 1 and fuser.selector.identity_changes == 1
+
+
+def test_the_fuser_follows_the_tide_at_each_frames_stamp():
+    """A vessel moored 150 m out while the tide falls 0.35 m an hour under a camera 2.6 m up.
+
+    The boxes come from the true camera at each instant. With the water-level table the fused range stays right;
+    with the calibration's fixed H the vessel seems to come closer by about 13 % an hour.
+    """
+    from vessel_calib.camera_model import CameraModel
+    from vessel_calib.water_level import WaterLevelTable
+
+    base = challenge_camera()
+    calibrated = CameraModel(base.H, base.K1, base.center, base.image_size, base.camera_lat, base.camera_lon,
+                             base.box_anchor, water_level_m=1.0, height_m=base.pinhole().height_m)
+    t0 = 1601494200.0
+    table = WaterLevelTable(np.array([t0, t0 + 3600.0]), np.array([1.0, 0.65]), source="falling tide")
+    vessel = np.array([[120.0, 90.0]])
+    tided = TrackFuser(calibrated, MODEL, water_level=table)
+    fixed = TrackFuser(calibrated, MODEL)
+    errors = {"tided": [], "fixed": []}
+    for k in range(0, 13):
+        stamp = t0 + 300.0 * k
+        truth = calibrated.at_water_level(table.level_at(stamp))
+        box = _boxes_at(truth, vessel)[0]
+        for name, fuser in (("tided", tided), ("fixed", fixed)):
+            out = fuser.update(stamp, [_track("A", *_centre_size(box))])[0]
+            errors[name].append(float(np.hypot(*(out.measured_position - vessel[0]))))
+    assert max(errors["tided"]) < 0.5
+    assert errors["fixed"][-1] > 15.0 > errors["fixed"][0] + 10.0     # 150 m x 13 %/h after an hour
+    # outside the table (plus the hold) the frame is fused at the calibration's level, and counted
+    late = t0 + 3600.0 + tided.water_level_max_hold_s + 60.0
+    tided.update(late, [_track("A", *_centre_size(_boxes_at(calibrated, vessel)[0]))])
+    assert tided.counts.get("water_level_unknown") == 1
+    with pytest.raises(DataError, match="no camera.water_level_m"):
+        TrackFuser(base, MODEL, water_level=table)

@@ -36,6 +36,7 @@ the camera of the GPS labels and of the geometry features.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -151,14 +152,15 @@ PER_FRAME_PICKS = ("gps", "score")
 
 
 def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIVE_PX,
-                             anchor_offset: float = 0.0, pick: str = "gps") -> list[str]:
+                             anchor_offset: float = 0.0, pick: str = "gps", water_level=None) -> list[str]:
     """``video,t_utc_s,lat,lon`` lines: one box per frame back-projected, a baseline without tracking.
 
     ``pick``: ``gps``, the box nearest the vessel's projected GPS (the right box picked by the truth; frames
     without a box within ``radius_px`` give no line), or ``score``, the box the detector scores highest (what a
     system without tracker and selection would publish). The box is read where the fuser reads it: the
     calibration's reference point plus ``anchor_offset``. What the tracker and fuser have to beat, as the
-    per-frame back-projection of hand boxes is for hand boxes.
+    per-frame back-projection of hand boxes is for hand boxes. With ``water_level`` (a ``WaterLevelTable``) each
+    frame is read through the camera at its water level, as the fuser does.
     """
     from vessel_track.pipeline import PREDICTION_HEADER, prediction_line
 
@@ -176,8 +178,11 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
             if found is None or found[0].min() > radius_px:
                 continue
             box = frame.boxes[int(np.argmin(found[0]))]
-        (x, y), = camera.box_reference_points(box, anchor_offset)
-        lat, lon, valid = camera.screen_to_gps(x, y)
+        seen_by = camera
+        if water_level is not None and math.isfinite(level := water_level.level_at(frame.stamp, 900.0)):
+            seen_by = camera.at_water_level(level)
+        (x, y), = seen_by.box_reference_points(box, anchor_offset)
+        lat, lon, valid = seen_by.screen_to_gps(x, y)
         if bool(np.all(valid)):
             lines.append(prediction_line(frame.video, frame.stamp, lat, lon))
     return lines
@@ -283,8 +288,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.per_frame_out is not None:
                 from vessel_track.pipeline import _atomic_lines
 
-                offset = load_fuser_settings(args.params or default_params_path()).fusion.anchor_offset
-                lines = per_frame_backprojection(dataset, camera, frames, args.radius, offset, args.pick)
+                settings = load_fuser_settings(args.params or default_params_path())
+                water_level = settings.water_level.load() if math.isfinite(camera.water_level_m) else None
+                lines = per_frame_backprojection(dataset, camera, frames, args.radius,
+                                                 settings.fusion.anchor_offset, args.pick, water_level)
                 _atomic_lines(args.per_frame_out, lines)
                 print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
             shares = top_box_share(dataset, camera, frames, args.radius)

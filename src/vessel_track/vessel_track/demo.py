@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import os
 import sys
@@ -71,8 +72,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 # --------------------------------------------------------------------------------------------------------------
 # Inputs: calibration, bags, label detections
 # --------------------------------------------------------------------------------------------------------------
-def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path) -> Path:
-    """The calibration file the graph loads: given, fitted from training labels, or the shipped one."""
+def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_level_file: str = "") -> Path:
+    """The calibration file the graph loads: given, fitted from training labels, or the shipped one.
+
+    With ``water_level_file`` (the parameter file's fuser ``water_level.file``) the fit allows for the tide; if
+    the labels' times are outside that file, it is fitted without (and the fuser then runs without the tide).
+    """
     if calib is not None:
         if not calib.is_file():
             raise VesselError(f"calibration file {calib} not found: run ./vessel calibrate or drop --calib")
@@ -89,8 +94,15 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path) -> Path
             target = out / "calibration.yaml"
             videos = ",".join(str(v) for v in train)
             log(f"calibrating from {source.path} training videos {videos} -> {target}")
-            status = calibrate_node.main(["--data", str(source.path), "--videos", videos, "--label-passes", "all",
-                                          "--out", str(target)])
+            command = ["--data", str(source.path), "--videos", videos, "--label-passes", "all", "--out", str(target)]
+            status = 1
+            if water_level_file:
+                status = calibrate_node.main(command + ["--water-level", water_level_file])
+                if status != 0:
+                    log(f"calibrating with the water level of {water_level_file} failed (see above): calibrating "
+                        "without it")
+            if status != 0:
+                status = calibrate_node.main(command)
             if status != 0:
                 raise VesselError(f"calibration from {source.path} failed (status {status}); pass --calib FILE")
             return target
@@ -222,7 +234,8 @@ class VideoRun:
 
 
 def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, label_csv: Path | None,
-              log_dir: Path, frames_expected: int, saved_csv: Path | None = None) -> VideoRun:
+              log_dir: Path, frames_expected: int, saved_csv: Path | None = None,
+              fuser_overrides: dict | None = None) -> VideoRun:
     """One video through the whole graph as separate processes; the outputs recorded to ``recording``.
 
     The source is the camera replaying the video's bag into the detector (or into the replay detector
@@ -241,7 +254,9 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
         nodes = {node.name: node for node in GRAPH_NODES}
         runner.start(nodes["gps_publisher"])
         # Hand-drawn boxes are read as the calibration read them (FuserSettings.for_hand_boxes).
-        runner.start(nodes["fuser"], {"fusion": dict(HAND_BOX_FUSION)} if labels else None)
+        fuser_values = {"fusion": dict(HAND_BOX_FUSION)} if labels else {}
+        fuser_values.update(fuser_overrides or {})
+        runner.start(nodes["fuser"], fuser_values or None)
         runner.start(nodes["tracker"])
         if saved_csv is not None:
             runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",
@@ -354,8 +369,28 @@ def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
     return predictions_path, tracks_path
 
 
+def tide_overrides(calibration: Path, params_file: Path) -> dict:
+    """Fuser parameter overrides that turn the tide correction off when ``calibration`` cannot be corrected.
+
+    The parameter file may name a water-level file (``water_level.file``) while the calibration was fitted
+    without one (``--calib`` an older file, or labels outside the file's times): the fuser would refuse to start,
+    so the demo says so and runs without the correction.
+    """
+    import math
+
+    from vessel_calib.params import load_camera_yaml
+    from vessel_track.fuser_settings import load_fuser_settings
+
+    wanted = load_fuser_settings(params_file).water_level.file
+    if wanted and not math.isfinite(load_camera_yaml(calibration).water_level_m):
+        log(f"{calibration} has no camera.water_level_m (calibrated without --water-level): the fuser runs without "
+            f"the tide correction of {wanted}")
+        return {"water_level": {"file": ""}}
+    return {}
+
+
 def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Path, params_file: Path,
-                               hand_boxes: bool = False) -> Path:
+                               hand_boxes: bool = False, overrides: dict | None = None) -> Path:
     """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
 
     The same tracker and fuser cores the nodes run, with the parameter file's settings, then the trajectory
@@ -373,6 +408,9 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
 
     camera = load_camera_yaml(calibration)
     settings = load_fuser_settings(params_file)
+    if (overrides or {}).get("water_level"):
+        settings = dataclasses.replace(settings, water_level=dataclasses.replace(settings.water_level,
+                                                                                 **overrides["water_level"]))
     config = PipelineConfig(mode="offline", tracker=load_tracker_config(params_file),
                             settings=settings.for_hand_boxes() if hand_boxes else settings)
     results = []
@@ -419,8 +457,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             saved = csv_detections(Path(args.detections), dataset, videos)
         out = args.out or repo_root() / "out" / "demo"
         out.mkdir(parents=True, exist_ok=True)
-        calibration = prepare_calibration(dataset, args.calib, out)
-        params = [args.params or default_params_file(), calibration]
+        params_file = args.params or default_params_file()
+        from vessel_track.fuser_settings import load_fuser_settings
+
+        water_level = load_fuser_settings(params_file).water_level
+        if water_level.file:
+            water_level.load()  # a missing or broken file fails here, before any work
+        calibration = prepare_calibration(dataset, args.calib, out, water_level.file)
+        fuser_overrides = tide_overrides(calibration, params_file)
+        params = [params_file, calibration]
         shared = default_data_dir()
         is_shared = shared is not None and Path(data).resolve() == shared.resolve()
         bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
@@ -447,14 +492,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             recording.parent.mkdir(parents=True, exist_ok=True)
             log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
             run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
-                            frames_per_video[video], saved_csvs.get(video))
+                            frames_per_video[video], saved_csvs.get(video), fuser_overrides)
             log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
                 f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
             runs.append(run)
         predictions, tracks = export_recordings(runs, out)
         from vessel_track.demo_report import write_report
 
-        offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
+        offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels",
+                                             fuser_overrides)
         summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
                                "labels" if args.detections == "labels" else "frames")
         (out / "summary.json").write_text(json.dumps(summary, indent=2))

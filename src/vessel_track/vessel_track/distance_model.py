@@ -212,14 +212,19 @@ def fit_distance_model(camera, boxes_xyxy, world_xy, source: str = "") -> BoxSiz
     return BoxSizeDistanceModel(a, b, c, d, sw, sh, n_points=min(nw, nh), source=source)
 
 
-def training_pairs(dataset, camera, videos: list[int] | None):
-    """Hand boxes (primary, gps_ok) of ``videos`` with the vessel's world position: (boxes (N,4), world (N,2))."""
+def training_pairs(dataset, camera, videos: list[int] | None, with_stamps: bool = False):
+    """Hand boxes (primary, gps_ok) of ``videos`` with the vessel's world position: (boxes (N,4), world (N,2)).
+
+    ``with_stamps`` adds a third array, each box's stamp (Unix seconds).
+    """
     labels = [r for r in dataset.labels(videos, primary_only=True) if r.gps_ok]
     if not labels:
         raise DataError(f"no labelled boxes with GPS in videos {videos}; screen_labels.csv needs rows with "
                         f"gps_ok=1 in those videos")
     boxes = np.array([[r.x1, r.y1, r.x2, r.y2] for r in labels], dtype=float)
     xw, yw = camera.gps_to_world(np.array([r.lat for r in labels]), np.array([r.lon for r in labels]))
+    if with_stamps:
+        return boxes, np.column_stack([xw, yw]), np.array([r.stamp for r in labels], dtype=float)
     return boxes, np.column_stack([xw, yw])
 
 
@@ -242,7 +247,8 @@ def pixels_from_vessel(track, camera, frame, max_gap_s: float = 3.0):
     return np.hypot(centres[:, 0] - xs, centres[:, 1] - ys), (lat, lon)
 
 
-def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Path, max_px: float = 30.0):
+def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Path, max_px: float = 30.0,
+                   with_stamps: bool = False):
     """Detector boxes of the vessel of interest with its world position: (boxes (N, 4), world (N, 2)).
 
     For every frame of ``videos`` where the vessel's GPS can be interpolated (fixes at most 3 s apart) and
@@ -253,7 +259,7 @@ def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Pa
     from vessel_track.pipeline import csv_detections
 
     track = dataset.gps_track()
-    boxes, world = [], []
+    boxes, world, stamps = [], [], []
     for frame in csv_detections(detections_csv, dataset, videos):
         found = pixels_from_vessel(track, camera, frame)
         if found is None:
@@ -263,14 +269,32 @@ def detector_pairs(dataset, camera, videos: list[int] | None, detections_csv: Pa
         if distance[best] <= max_px:
             boxes.append(frame.boxes[best])
             world.append(camera.gps_to_world(lat, lon))
+            stamps.append(frame.stamp)
     if len(boxes) < 5:
         raise DataError(f"{detections_csv}: only {len(boxes)} detections match the vessel's GPS within {max_px} px "
                         f"in videos {videos}; run the detector on the training videos")
+    if with_stamps:
+        return np.array(boxes, dtype=float), np.array(world, dtype=float), np.array(stamps, dtype=float)
     return np.array(boxes, dtype=float), np.array(world, dtype=float)
 
 
+def cue_residuals_at_levels(camera, model, boxes, world, levels=None, config=None):
+    """``fusion.cue_residuals`` with each box seen through the camera at its own water level (``levels``, m).
+
+    This is how the fuser sees a box when a water-level file is set (``TrackFuser.camera_at``); without
+    ``levels`` every box goes through ``camera`` as it is.
+    """
+    from vessel_track.fusion import cue_residuals
+
+    if levels is None:
+        return cue_residuals(camera, model, boxes, world, config)
+    parts = [cue_residuals(camera.at_water_level(level), model, box[None], point[None], config)
+             for box, point, level in zip(boxes, world, levels, strict=True)]
+    return np.vstack([part[0] for part in parts]), np.concatenate([part[1] for part in parts])
+
+
 def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor: float, config=None,
-                                   detections_csv=None):
+                                   detections_csv=None, water_level=None):
     """Cue noise measured out of sample (leave one video out), pooled over the training videos.
 
     For each training video: calibrate (``vessel_calib.calibration``, boxes read ``box_anchor`` of the way down)
@@ -280,7 +304,7 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor
     optimistic; the fusion weights and covariances should describe boxes the calibration has not seen.
     """
     from vessel_calib.calibration import calibrate_from_labels
-    from vessel_track.fusion import cue_residuals, cue_statistics_of_residuals
+    from vessel_track.fusion import cue_statistics_of_residuals
 
     labelled = sorted({r.video for r in dataset.labels(videos, primary_only=True) if r.gps_ok})
     if len(labelled) < 3:
@@ -289,18 +313,20 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor
     resid, x_resid = [], []
     for held_out in labelled:
         others = [v for v in labelled if v != held_out]
-        camera = calibrate_from_labels(dataset, others, box_anchor)
+        camera = calibrate_from_labels(dataset, others, box_anchor, water_level=water_level)
         if detections_csv is None:
             boxes, world = training_pairs(dataset, camera, others)
-            held_boxes, held_world = training_pairs(dataset, camera, [held_out])
+            held_boxes, held_world, held_stamps = training_pairs(dataset, camera, [held_out], with_stamps=True)
         else:
             boxes, world = detector_pairs(dataset, camera, others, detections_csv)
             try:
-                held_boxes, held_world = detector_pairs(dataset, camera, [held_out], detections_csv)
+                held_boxes, held_world, held_stamps = detector_pairs(dataset, camera, [held_out], detections_csv,
+                                                                     with_stamps=True)
             except DataError:
                 continue  # too few matched detections in this video to measure anything
         model = fit_distance_model(camera, boxes, world)
-        r, x = cue_residuals(camera, model, held_boxes, held_world, config)
+        levels = None if water_level is None else water_level.level_at(held_stamps)
+        r, x = cue_residuals_at_levels(camera, model, held_boxes, held_world, levels, config)
         resid.append(r)
         x_resid.append(x)
     return cue_statistics_of_residuals(np.vstack(resid), np.concatenate(x_resid))
@@ -332,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
         from vessel_calib.dataset import parse_videos
         from vessel_track.error_model import update_params_file
         from vessel_track.fuser_settings import load_fuser_settings
-        from vessel_track.fusion import FusionConfig, fit_cue_statistics
+        from vessel_track.fusion import FusionConfig, cue_statistics_of_residuals
         from vessel_track.pipeline import load_camera, open_dataset
 
         dataset = open_dataset(args.data)
@@ -346,14 +372,24 @@ def main(argv: list[str] | None = None) -> int:
             source = f"detector boxes {args.detections.name} videos {args.videos}, camera " \
                      f"{Path(camera_source.split(' ')[0]).name}"
         model = fit_distance_model(camera, boxes, world, source=source)
-        # The file's other fusion settings stay; the cues are measured on boxes read as these boxes are read.
-        kept = load_fuser_settings(args.out, args.node).fusion if args.out.is_file() else FusionConfig()
+        # The file's other fusion settings stay; the cues are measured on boxes read as these boxes are read,
+        # and at the water level of each box's instant when the file names a water-level table.
+        settings = load_fuser_settings(args.out, args.node) if args.out.is_file() else None
+        kept = settings.fusion if settings is not None else FusionConfig()
+        water_level = settings.water_level.load() if settings is not None else None
         config = kept if args.detections is not None else dataclasses.replace(kept, anchor_offset=0.0)
         if args.in_sample:
-            stats = fit_cue_statistics(camera, model, boxes, world, config)
+            if args.detections is None:
+                stamps = training_pairs(dataset, camera, videos, with_stamps=True)[2]
+            else:
+                stamps = detector_pairs(dataset, camera, videos, args.detections, with_stamps=True)[2]
+            levels = None if water_level is None else water_level.level_at(stamps)
+            stats = cue_statistics_of_residuals(*cue_residuals_at_levels(camera, model, boxes, world, levels,
+                                                                         config))
             how = "in-sample"
         else:
-            stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections)
+            stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections,
+                                                   water_level=water_level)
             how = "leave-one-video-out"
         update_params_file(args.out, args.node, "distance_model", model.to_params())
         fusion_block = kept.to_params()

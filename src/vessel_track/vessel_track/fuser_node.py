@@ -42,6 +42,10 @@ PROBLEM_MESSAGES = {
     "identity_changed": "a track's positions stopped fitting its world filter (motion.max_rejections outliers in a "
                         "row): the tracker may have moved it onto another vessel, so its history was ended",
     "nonfinite_stamp": "a track array with a non-finite stamp was dropped",
+    "water_level_unknown": "a frame's stamp is outside water_level.file (plus water_level.max_hold_s): it was fused "
+                           "at the calibration's water level; extend the file to cover the recording",
+    "water_level_unusable": "water_level.file gives a level that would put the camera under the water (metres? "
+                            "the datum of the calibration?): the frame was fused at the calibration's level",
 }
 
 
@@ -107,8 +111,9 @@ class FuserNode(Node):
         output_topic = declare_parameter(self, "output_topic", *FUSER_TOPICS["output_topic"])
         depth = declare_parameter(self, "qos_depth", *FUSER_TOPICS["qos_depth"], int_range=(1, 1000))
         s = self.settings
+        water_level = s.water_level.load()
         self.core = TrackFuser(self.camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection,
-                               s.error_model)
+                               s.error_model, water_level=water_level, water_level_max_hold_s=s.water_level.max_hold_s)
         self.health = NodeHealth(self)
         self._reported_counts: dict[str, int] = {}
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
@@ -118,7 +123,9 @@ class FuserNode(Node):
         self.get_logger().info(
             f"fuser: {input_topic} -> {output_topic}; camera heading {self.camera.heading_deg:.1f} deg, weights "
             f"{s.fusion.weights_mode}, {s.fusion.screen_source} boxes, error model "
-            f"{100 * s.error_model.slope:.2f} m/100 m")
+            f"{100 * s.error_model.slope:.2f} m/100 m" + (
+                f"; tide from {water_level.source} (camera {self.camera.height_m:.2f} m above the sea at "
+                f"{self.camera.water_level_m:.2f} m)" if water_level is not None else ""))
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
         """Fuse one image's tracks and publish them with their world state."""

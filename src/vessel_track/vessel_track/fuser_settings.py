@@ -9,6 +9,7 @@ The fuser node, the pipeline and the fit tools share this, so the parameter file
     selection: {confidence_percentile, join_*, switch_*, ...}                                        (selection.py)
     offline: {outlier_threshold_px, iterations}                                                       (pipeline)
     error_model: {kind, slope, intercept_m, ...}                                                     (error_model.py)
+    water_level: {file, max_hold_s}                                        (vessel_calib.water_level, the tide)
 
 Keys may be nested (YAML) or flattened with dots (ROS parameter names); unknown keys are rejected by name.
 """
@@ -51,6 +52,31 @@ class OfflineConfig:
             raise DataError(f"offline: iterations must be >= 1, got {self.iterations!r}")
 
 
+@dataclass(frozen=True)
+class WaterLevelConfig:
+    """The tide: a water-level CSV (``vessel_calib.water_level``) read at each frame's stamp.
+
+    file: '' for none (the camera's height above the water is taken as constant). With a file, the calibration
+    must carry the water level it was fitted at (``camera.water_level_m``, written by ``calibrate --water-level``).
+    max_hold_s: outside the file's times its first or last level is used for this long; beyond, the frame is
+    fused at the calibration's level and counted as ``water_level_unknown``.
+    """
+
+    file: str = ""
+    max_hold_s: float = 900.0
+
+    def __post_init__(self) -> None:
+        """Validate."""
+        if not (np.isfinite(self.max_hold_s) and self.max_hold_s >= 0):
+            raise DataError(f"water_level: max_hold_s must be >= 0 seconds, got {self.max_hold_s!r}")
+
+    def load(self):
+        """The ``WaterLevelTable`` of ``file`` (None without one); DataError naming the file if it is unusable."""
+        from vessel_calib.water_level import load_water_level
+
+        return load_water_level(self.file)
+
+
 #: The shipped error model: the online pipeline on the hand boxes of training videos 7-12, each video scored
 #: with the calibration and fusion fitted on the others (``pipeline --leave-one-out 7-12``), line through the
 #: origin, with the shipped calibration (boxes read 0.65 of the way down; 0.1016 with box centres). The paper's
@@ -80,6 +106,7 @@ class FuserSettings:
     selection: SelectionConfig = field(default_factory=SelectionConfig)
     offline: OfflineConfig = field(default_factory=OfflineConfig)
     error_model: ErrorModel = field(default_factory=lambda: FITTED_ERROR_MODEL)
+    water_level: WaterLevelConfig = field(default_factory=WaterLevelConfig)
 
     def for_hand_boxes(self) -> FuserSettings:
         """These settings for hand-drawn boxes: read at the calibration's ``box_anchor``, no shape suspicion.
@@ -101,6 +128,7 @@ class FuserSettings:
             "selection": dataclasses.asdict(self.selection),
             "offline": dataclasses.asdict(self.offline),
             "error_model": self.error_model.to_params(),
+            "water_level": dataclasses.asdict(self.water_level),
         }
 
     @classmethod
@@ -136,6 +164,7 @@ class FuserSettings:
             selection=_build(SelectionConfig, block("selection"), "selection"),
             offline=_build(OfflineConfig, block("offline"), "offline"),
             error_model=ErrorModel.from_params({**defaults.error_model.to_params(), **block("error_model")}),
+            water_level=_build(WaterLevelConfig, block("water_level"), "water_level"),
         )
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.errors import DataError
+from vessel_calib.errors import CalibrationError, DataError
 from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border
 from vessel_track.error_model import ErrorModel
 from vessel_track.selection import OnlineTargetSelector, SelectionConfig
@@ -429,11 +429,17 @@ class TrackFuser:
     def __init__(self, camera, distance_model: BoxSizeDistanceModel | None = None,
                  fusion_config: FusionConfig | None = None, cue_stats: CueStatistics | None = None,
                  motion_config: MotionConfig | None = None, selection_config: SelectionConfig | None = None,
-                 error_model: ErrorModel | None = None):
+                 error_model: ErrorModel | None = None, water_level=None, water_level_max_hold_s: float = 900.0):
         if camera.camera_lat is None:
             raise DataError("fuser: the camera model has no position (camera_lat/camera_lon); set them in the "
                             "calibration file")
+        if water_level is not None and not math.isfinite(camera.water_level_m):
+            raise DataError(f"fuser: a water-level file is set ({water_level.source or 'water_level.file'}) but the "
+                            "calibration has no camera.water_level_m to correct from; re-run calibrate with "
+                            "--water-level FILE.csv, or set water_level.file to ''")
         self.camera = camera
+        self.water_level = water_level
+        self.water_level_max_hold_s = float(water_level_max_hold_s)
         self.distance_model = distance_model or BoxSizeDistanceModel()
         self.fusion_config = fusion_config or FusionConfig()
         self.cue_stats = cue_stats or CueStatistics()
@@ -480,8 +486,10 @@ class TrackFuser:
                 continue
             good.append(track)
         measured = [t for t in good if t.updated and t.status != STATUS_LOST]
-        fused = fuse_boxes(self.camera, self.distance_model, np.array([t.box_xyxy for t in measured]).reshape(-1, 4),
-                           self.fusion_config, self.cue_stats) if measured else None
+        fused = None
+        if measured:
+            boxes = np.array([t.box_xyxy for t in measured]).reshape(-1, 4)
+            fused = fuse_boxes(self.camera_at(stamp), self.distance_model, boxes, self.fusion_config, self.cue_stats)
         fused_by_id = {t.track_id: i for i, t in enumerate(measured)}
         world_tracks: list[WorldTrack] = []
         changed_identity: list[str] = []
@@ -535,6 +543,20 @@ class TrackFuser:
             wt.score = self.selector.score(wt.screen.track_id)
             wt.is_target = target is not None and wt.screen.track_id == target and wt.screen.status != STATUS_LOST
         return out + world_tracks
+
+    def camera_at(self, stamp: float):
+        """The camera for the water level at ``stamp`` (the calibration's own without a water-level file)."""
+        if self.water_level is None:
+            return self.camera
+        level = self.water_level.level_at(stamp, self.water_level_max_hold_s)
+        if not math.isfinite(level):
+            self._count("water_level_unknown")
+            return self.camera
+        try:
+            return self.camera.at_water_level(level)
+        except CalibrationError:
+            self._count("water_level_unusable")
+            return self.camera
 
     def _shape_factor(self, track: ScreenTrack) -> float:
         """Covariance multiplier of this frame's box: ``shape_jump_variance_factor`` if its aspect jumped."""

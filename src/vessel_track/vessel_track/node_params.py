@@ -42,6 +42,12 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
                               "height cues, px^2 (fitted).", None),
     "fusion.cue_x_std_px": ("Std of the box reference point's x, ideal px (fitted).", (1e-6, 1e4)),
     "fusion.cue_n_points": ("Boxes the cue statistics were measured on (informational).", None),
+    "water_level.file": ("Water-level CSV (utc or utc_s, level_m; a NOAA tide prediction download works): the "
+                         "camera's height above the sea changes with the tide, ranges are corrected at each "
+                         "frame's stamp. Needs a calibration with camera.water_level_m (calibrate --water-level). "
+                         "'': none.", None),
+    "water_level.max_hold_s": ("Outside the file's times its end level is held this long, s; beyond, no "
+                               "correction (counted as water_level_unknown).", (0.0, 1e9)),
     "motion.accel_psd": ("World Kalman filter: acceleration noise spectral density, m^2/s^3.", (1e-9, 1e6)),
     "motion.initial_speed_std": ("Prior std of each velocity component of a new track, m/s.", (1e-6, 1e3)),
     "motion.max_speed": ("Fitted speeds above this are clipped, m/s.", (1e-3, 1e3)),

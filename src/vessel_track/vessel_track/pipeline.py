@@ -242,9 +242,12 @@ class PipelineConfig:
     max_coast_s: float = 12.0
     tracker: object = None   # TrackerConfig (the command line: the parameter file's); None: the tracker's defaults
     settings: FuserSettings = field(default_factory=FuserSettings)
+    water_level: object = None  # WaterLevelTable; None: that of settings.water_level.file (if any)
 
     def __post_init__(self) -> None:
-        """Validate."""
+        """Validate; load the water-level file the settings name."""
+        if self.water_level is None and self.settings.water_level.file:
+            self.water_level = self.settings.water_level.load()
         if self.mode not in MODES:
             raise DataError(f"pipeline: mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.screen_source is None:
@@ -280,7 +283,8 @@ def run_screen_tracks(video: int, screen_frames, camera, config: PipelineConfig)
     offline smoothing of a recorded run.
     """
     s = config.settings
-    fuser = TrackFuser(camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection, s.error_model)
+    fuser = TrackFuser(camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection, s.error_model,
+                       water_level=config.water_level, water_level_max_hold_s=s.water_level.max_hold_s)
     result = VideoResult(video)
     stamps: list[float] = []
     for frame, stamp, screen_tracks in screen_frames:
@@ -360,8 +364,16 @@ def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config
         RR[index[t]] = Ri
         screen_y[index[t]] = si[1]
 
+    levels = None
+    if config.water_level is not None:
+        levels = config.water_level.level_at(grid, s.water_level.max_hold_s)
+        levels = np.where(np.isfinite(levels), levels, camera.water_level_m)
+
     def residual_px(positions: np.ndarray) -> np.ndarray:
-        _, ys, ok = camera.world_to_screen(positions[:, 0], positions[:, 1])
+        xw, yw = positions[:, 0], positions[:, 1]
+        if levels is not None:
+            xw, yw = camera.from_water_level(xw, yw, levels)
+        _, ys, ok = camera.world_to_screen(xw, yw)
         return np.where(np.asarray(ok) & np.isfinite(screen_y), np.asarray(ys) - screen_y, np.nan)
 
     motion = s.motion
@@ -410,10 +422,11 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
     results = []
     for video in sorted(by_video):
         others = [v for v in train_videos if v != video]
-        camera = calibrate_from_labels(dataset, others, box_anchor)
+        camera = calibrate_from_labels(dataset, others, box_anchor, water_level=config.water_level)
         boxes, world = training_pairs(dataset, camera, others)
         settings = dataclasses.replace(config.settings, distance_model=fit_distance_model(camera, boxes, world),
-                                       cue_stats=cross_validated_cue_statistics(dataset, others, box_anchor))
+                                       cue_stats=cross_validated_cue_statistics(dataset, others, box_anchor,
+                                                                                water_level=config.water_level))
         results.append(run_video(by_video[video], camera, dataclasses.replace(config, settings=settings)))
     return results
 
@@ -523,6 +536,10 @@ def main(argv: list[str] | None = None) -> int:
         camera, camera_source = load_camera(args.calib, dataset)
         params_path = args.params if args.params is not None else default_params_path()
         settings = load_fuser_settings(params_path)
+        if settings.water_level.file and not args.leave_one_out and not math.isfinite(camera.water_level_m):
+            print(f"note: {camera_source} has no camera.water_level_m (calibrated without --water-level): running "
+                  f"without the tide correction of {settings.water_level.file}", file=sys.stderr)
+            settings = dataclasses.replace(settings, water_level=dataclasses.replace(settings.water_level, file=""))
         if args.detections == "labels":
             frames = label_detections(dataset, videos)
             settings = settings.for_hand_boxes()
