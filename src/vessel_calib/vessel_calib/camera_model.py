@@ -105,6 +105,7 @@ class CameraModel:
     __slots__ = (
         "_H", "_Hinv", "_K1", "_center", "_image_size", "_camera_lat", "_camera_lon",
         "_horizon", "_r_fold", "_rs_max", "_heading", "_box_anchor", "_water_level_m", "_height_m",
+        "_pinhole",
     )
 
     def __init__(self, H, K1: float = 0.0, center=(640.0, 360.0), image_size=(1280, 720),
@@ -117,6 +118,7 @@ class CameraModel:
             raise CalibrationError(f"height_m is the camera's height above the water and must be > 0, got {height_m!r}")
         self._water_level_m = float(water_level_m)
         self._height_m = float(height_m)
+        self._pinhole: PinholeGeometry | None = None
         if not _is_number(box_anchor) or not 0.0 <= float(box_anchor) <= 1.0:
             raise CalibrationError(
                 f"box_anchor must be a number in [0, 1] (0 box top, 0.5 centre, 1 bottom), got {box_anchor!r}")
@@ -531,6 +533,11 @@ class CameraModel:
         two conditions), the rest follows. CalibrationError if no positive focal length fits (a homography no
         upright pinhole camera above a plane can produce).
         """
+        if self._pinhole is None:
+            self._pinhole = self._decompose()
+        return self._pinhole
+
+    def _decompose(self) -> PinholeGeometry:
         cx, cy = self._center
         H = self._H
         a = H[0] - cx * H[2]

@@ -316,3 +316,35 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
           f"{np.median(errors):.1f} m, {inside} within 3 sigma)")
     assert np.median(errors) < 30.0       # the vessel of interest (250-300 m out), not a neighbour
     assert inside >= 0.9 * len(settled)
+
+
+@pytest.mark.parametrize("problem", ["missing_file", "calibration_without_a_level", "none"])
+def test_a_water_level_file_is_checked_at_start(tmp_path, problem):
+    """The tide needs a readable file and a calibration made with it; either missing refuses to start, in one line."""
+    from vessel_track.simulation import challenge_camera
+
+    env = ros_env()
+    tide = tmp_path / "tide.csv"
+    tide.write_text("utc,level_m\n2020-09-30T19:00:00Z,1.15\n2020-09-30T21:00:00Z,0.52\n")
+    camera = challenge_camera().to_params()
+    if problem != "calibration_without_a_level":
+        camera["water_level_m"] = 0.9
+    named = tmp_path / "absent.csv" if problem == "missing_file" else tide
+    params = write_params(tmp_path / "p.yaml", camera_block=camera,
+                          extra=f"fuser:\n  ros__parameters:\n    water_level:\n      file: {named}\n")
+    if problem == "none":
+        process = start("fuser", params, env, tmp_path)
+        try:
+            deadline = time.monotonic() + 30
+            while "tide from" not in (tmp_path / "fuser.log").read_text() and time.monotonic() < deadline:
+                assert process.poll() is None, (tmp_path / "fuser.log").read_text()
+                time.sleep(0.2)
+        finally:
+            stop([process])
+        assert f"tide from {tide}" in (tmp_path / "fuser.log").read_text()
+        return
+    done = subprocess.run([_executable("fuser"), "--ros-args", "--params-file", str(params)], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert "Traceback" not in done.stderr
+    assert ("does not exist" if problem == "missing_file" else "no camera.water_level_m") in done.stderr

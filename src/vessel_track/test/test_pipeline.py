@@ -176,9 +176,32 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
         counts = json.loads((out / "counts.json").read_text())
         assert set(counts) == {"13", "14"} and counts["13"]["tracker.frames"] > 0
         assert "selection.identity_changes" in counts["13"]
-    assert "m/100m" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "m/100m" in captured.out
+    # config/aitas.yaml corrects for the tide, this calibration was made without it: said, and run without
+    assert "running without the tide correction" in captured.err
     assert pl.main(["--data", str(data), "--detections", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_the_demo_turns_the_tide_off_for_a_calibration_made_without_it(tmp_path):
+    """A parameter file with a water-level table and a calibration without a water level: the fuser goes without."""
+    from pathlib import Path
+
+    from vessel_calib.camera_model import CameraModel
+    from vessel_calib.params import write_camera_yaml
+    from vessel_track.demo import tide_overrides
+    from vessel_track.simulation import challenge_camera
+
+    root = Path(__file__).resolve().parents[3]
+    params = root / "config" / "aitas.yaml"
+    untided = _camera_yaml(tmp_path, challenge_camera())
+    assert tide_overrides(untided, params) == {"water_level": {"file": ""}}
+    camera = challenge_camera()
+    tided = CameraModel(camera.H, camera.K1, camera.center, camera.image_size, camera.camera_lat,
+                        camera.camera_lon, camera.box_anchor, water_level_m=0.9)
+    assert tide_overrides(write_camera_yaml(tmp_path / "tided.yaml", tided), params) == {}
+    assert tide_overrides(untided, root / "config" / "parts" / "fuser.yaml") == {}   # no water-level file
 
 
 def _camera_yaml(tmp_path, camera):
