@@ -173,6 +173,11 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
             tracks = list(csv.DictReader(handle))
         assert {t["track_id"] for t in tracks if t["is_target"] == "1"}
         assert (out / "summary.json").is_file()
+        if mode == "online":  # the target's own boxes per frame beside the filter, in the same frames
+            measured, filtered = ((out / name).read_text().splitlines()
+                                  for name in ("target_measured.csv", "target_filtered.csv"))
+            assert len(measured) == len(filtered) >= 10 and measured[0] == "video,t_utc_s,lat,lon"
+            assert [m.split(",")[:2] for m in measured] == [f.split(",")[:2] for f in filtered]
         counts = json.loads((out / "counts.json").read_text())
         assert set(counts) == {"13", "14"} and counts["13"]["tracker.frames"] > 0
         assert "selection.identity_changes" in counts["13"]

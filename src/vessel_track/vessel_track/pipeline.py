@@ -483,6 +483,49 @@ def write_tracks_csv(path: Path, results: list[VideoResult]) -> None:
     _atomic_lines(Path(path), lines)
 
 
+def write_target_measurement_csvs(folder: Path, results: list[VideoResult], camera_lat: float,
+                                  camera_lon: float) -> tuple[Path, Path]:
+    """The online target's own boxes back-projected, and what the filter published, in the same frames.
+
+    ``target_measured.csv``: the target's fused measurement in each frame that has one (its box back-projected,
+    no filter); ``target_filtered.csv``: the filter's position in those frames. Scored side by side they say
+    whether the filter improves on the very boxes it was given.
+    """
+    measured, filtered = [PREDICTION_HEADER], [PREDICTION_HEADER]
+    for result in results:
+        for row in result.track_rows:
+            wt = row.world
+            if not (wt.is_target and wt.has_world and wt.measured_position is not None):
+                continue
+            if not np.all(np.isfinite(wt.measured_position)):
+                continue
+            lat, lon = geodesy.local_to_gps(wt.measured_position[0], wt.measured_position[1], camera_lat, camera_lon)
+            measured.append(prediction_line(row.video, row.stamp, lat, lon))
+            filtered.append(prediction_line(row.video, row.stamp, wt.latitude, wt.longitude))
+    paths = (Path(folder) / "target_measured.csv", Path(folder) / "target_filtered.csv")
+    _atomic_lines(paths[0], measured)
+    _atomic_lines(paths[1], filtered)
+    return paths
+
+
+def _filter_against_its_boxes(out: Path, results: list[VideoResult], camera, dataset, videos) -> str:
+    """Lines comparing the published target with its own boxes back-projected, on the same frames, per split."""
+    from vessel_track.evaluation import evaluate
+
+    measured_path, filtered_path = write_target_measurement_csvs(out, results, camera.camera_lat, camera.camera_lon)
+    scored = {name: evaluate(path, dataset.path, videos, None, None, "frames", False)
+              for name, path in (("measured", measured_path), ("filtered", filtered_path))}
+    lines = ["the filter against its own boxes back-projected frame by frame (same frames; target_measured.csv, "
+             "target_filtered.csv):"]
+    for split, block in scored["filtered"]["splits"].items():
+        own = scored["measured"]["splits"][split]
+        if block["m_per_100m"] is None or own["m_per_100m"] is None:
+            continue
+        lines.append(f"  {split}: filter {block['m_per_100m']:.2f}, its boxes {own['m_per_100m']:.2f} m/100m "
+                     f"({block['n']} frames; median {block['median_m']:.1f} against {own['median_m']:.1f} m)")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line entry point."""
     from vessel_detect.appearance_model import (
@@ -576,6 +619,8 @@ def main(argv: list[str] | None = None) -> int:
             summary = evaluate(args.out / "predictions.csv", dataset.path, videos, args.out, args.calib,
                                coverage_frames, not args.no_plots)
             print(format_table(summary))
+            if args.mode == "online":
+                print(_filter_against_its_boxes(args.out, results, camera, dataset, videos))
     except VesselError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
