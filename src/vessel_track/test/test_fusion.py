@@ -303,3 +303,38 @@ def test_the_fuser_follows_the_tide_at_each_frames_stamp():
     assert tided.counts.get("water_level_unknown") == 1
     with pytest.raises(DataError, match="no camera.water_level_m"):
         TrackFuser(base, MODEL, water_level=table)
+
+
+def test_a_box_of_only_the_cabin_is_trusted_less():
+    """A box much shorter than its track's last boxes (the detector boxed the console, not the hull) reads too far.
+
+    Its covariance grows, so the filter follows the track's motion through it; a vessel slowly going away
+    (its boxes shrinking a few per cent a frame) is not suspect, and hand-drawn boxes are never read this way.
+    """
+    cam = challenge_camera()
+    path = np.column_stack([150.0 + 2.0 * np.arange(10) * 4, 120.0 + 0.0 * np.arange(10)])
+    boxes = _boxes_at(cam, path)
+    cabin = boxes.copy()
+    cabin[7, 3] -= 0.5 * (boxes[7, 3] - boxes[7, 1])   # the top half of the boat only
+
+    def run(config, box_rows):
+        fuser = TrackFuser(cam, MODEL, fusion_config=config)
+        outs = [{w.screen.track_id: w for w in fuser.update(1000.0 + 4 * k, [_track("A", *_centre_size(b))])}["A"]
+                for k, b in enumerate(box_rows)]
+        return fuser, outs
+
+    off_fuser, off = run(FusionConfig(), cabin)
+    on_fuser, on = run(FusionConfig(height_drop_ratio=0.75, shape_jump_variance_factor=9.0), cabin)
+    assert on_fuser.counts.get("height_drop") == 1 and "height_drop" not in off_fuser.counts
+    np.testing.assert_allclose(on[7].measured_covariance, 9.0 * off[7].measured_covariance)
+    true_range = np.hypot(*path[7])
+    assert np.hypot(*on[7].measured_position) > true_range + 10.0       # the cabin box reads metres too far ...
+    error_on, error_off = (np.hypot(*(o[7].position - path[7])) for o in (on, off))
+    assert error_on < 0.5 * error_off                                    # ... which the suspicious filter discounts
+    going_away = _boxes_at(cam, np.column_stack([100.0 + 3.0 * np.arange(10) * 4, 80.0 + 2.0 * np.arange(10) * 4]))
+    assert "height_drop" not in run(FusionConfig(height_drop_ratio=0.75), going_away)[0].counts
+    hand = FuserSettings.from_params({"fusion": {"height_drop_ratio": 0.75}}).for_hand_boxes()
+    assert hand.fusion.height_drop_ratio == 0.0
+    for bad in (1.0, -0.1, float("nan")):
+        with pytest.raises(DataError, match="height_drop_ratio"):
+            FusionConfig(height_drop_ratio=bad)

@@ -42,6 +42,10 @@ PROBLEM_MESSAGES = {
     "identity_changed": "a track's positions stopped fitting its world filter (motion.max_rejections outliers in a "
                         "row): the tracker may have moved it onto another vessel, so its history was ended",
     "nonfinite_stamp": "a track array with a non-finite stamp was dropped",
+    "shape_jump": "a box much taller for its width than its track's recent boxes (spray or wake below the hull) was "
+                  "trusted less",
+    "height_drop": "a box much shorter than its track's recent boxes (only the cabin or console boxed) was trusted "
+                   "less",
     "water_level_unknown": "a frame's stamp is outside water_level.file (plus water_level.max_hold_s): it was fused "
                            "at the calibration's water level; extend the file to cover the recording",
     "water_level_unusable": "water_level.file gives a level that would put the camera under the water (metres? "

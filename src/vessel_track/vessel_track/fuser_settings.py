@@ -88,7 +88,7 @@ FITTED_ERROR_MODEL = ErrorModel(slope=0.0721617495, kind="origin", n_points=61,
 
 #: the ``fusion`` settings that describe a detector's boxes, as they are for hand-drawn ones
 #: (``FuserSettings.for_hand_boxes``; the demo passes them to the fuser node in its labels mode)
-HAND_BOX_FUSION = {"anchor_offset": 0.0, "shape_jump_ratio": 0.0}
+HAND_BOX_FUSION = {"anchor_offset": 0.0, "shape_jump_ratio": 0.0, "height_drop_ratio": 0.0}
 
 FUSION_ANCHOR_MOVED = ("fuser parameters: fusion.anchor is no longer a fuser parameter: where a box stands for the "
                        "vessel belongs to the calibration it was fitted with (camera.box_anchor, written by calibrate "

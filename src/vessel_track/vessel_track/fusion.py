@@ -45,6 +45,9 @@ PAPER_WEIGHTS = (0.5, 0.25, 0.25)
 SIZE_CONSISTENCY_CHI2 = 9.21
 #: measured boxes of a track whose median aspect a new box is compared with (``FusionConfig.shape_jump_ratio``)
 SHAPE_HISTORY = 5
+#: measured boxes of a track whose median height a new box is compared with (``FusionConfig.height_drop_ratio``;
+#: 3 chosen on training videos 7-12 against 5)
+HEIGHT_HISTORY = 3
 
 # Why a box gave no position.
 REASON_OK = 0
@@ -140,6 +143,10 @@ class FusionConfig:
         covariance is multiplied by ``shape_jump_variance_factor``, so the world filter and the offline
         smoother lean on the track's motion instead. 0: off (hand-drawn boxes, tight around the hull).
     shape_jump_variance_factor: that multiplier (>= 1).
+    height_drop_ratio: a box less than this share as tall as the median of its track's last ``HEIGHT_HISTORY``
+        measured boxes is suspect too: the detector boxed part of the vessel (its console or cabin, seen from the
+        side), whose bottom is not the waterline, so its position sits too far, or too near when the part is a
+        low one. Its covariance gets the same ``shape_jump_variance_factor``. 0: off (hand-drawn boxes).
     """
 
     weights_mode: str = "fitted"
@@ -150,6 +157,7 @@ class FusionConfig:
     screen_source: str = "measured"
     shape_jump_ratio: float = 0.0
     shape_jump_variance_factor: float = 9.0
+    height_drop_ratio: float = 0.0
 
     def __post_init__(self) -> None:
         """Validate the fields."""
@@ -167,6 +175,9 @@ class FusionConfig:
                 raise DataError(f"fusion: {name} must be a positive number of metres, got {value!r}")
         if not (math.isfinite(self.shape_jump_ratio) and (self.shape_jump_ratio == 0 or self.shape_jump_ratio > 1)):
             raise DataError(f"fusion: shape_jump_ratio must be 0 (off) or a ratio > 1, got {self.shape_jump_ratio!r}")
+        if not (math.isfinite(self.height_drop_ratio) and 0 <= self.height_drop_ratio < 1):
+            raise DataError(f"fusion: height_drop_ratio must be 0 (off) or a share in (0, 1), got "
+                            f"{self.height_drop_ratio!r}")
         if not (math.isfinite(self.shape_jump_variance_factor) and self.shape_jump_variance_factor >= 1):
             raise DataError("fusion: shape_jump_variance_factor must be a finite number >= 1, got "
                             f"{self.shape_jump_variance_factor!r}")
@@ -177,7 +188,8 @@ class FusionConfig:
                 "max_range_m": float(self.max_range_m), "clip_m": float(self.clip_m),
                 "min_depth_m": float(self.min_depth_m), "screen_source": self.screen_source,
                 "shape_jump_ratio": float(self.shape_jump_ratio),
-                "shape_jump_variance_factor": float(self.shape_jump_variance_factor)}
+                "shape_jump_variance_factor": float(self.shape_jump_variance_factor),
+                "height_drop_ratio": float(self.height_drop_ratio)}
 
 
 @dataclass
@@ -448,7 +460,7 @@ class TrackFuser:
         self.error_model = error_model or ErrorModel()
         self.filters: dict[str, WorldKalmanFilter] = {}
         self._ended_filters: dict[str, WorldKalmanFilter] = {}   # of ended tracks, while a join may continue them
-        self._aspects: dict[str, deque] = {}                     # recent box aspects per track (shape_jump_ratio)
+        self._shapes: dict[str, deque] = {}   # recent (aspect, height) of each track's boxes (shape_jump, height_drop)
         self.last_stamp: float | None = None
         self.counts: dict[str, int] = {}
 
@@ -459,7 +471,7 @@ class TrackFuser:
         """Forget every track (a replay restarted)."""
         self.filters.clear()
         self._ended_filters.clear()
-        self._aspects.clear()
+        self._shapes.clear()
         self.selector.reset()
         self.last_stamp = None
 
@@ -531,7 +543,7 @@ class TrackFuser:
         for tid in [t for t in self.filters if t not in present]:
             self._ended_filters[tid] = self.filters.pop(tid)  # vanished without a LOST report
         live = {t.track_id for t in good if t.status != STATUS_LOST}
-        self._aspects = {tid: history for tid, history in self._aspects.items() if tid in live}
+        self._shapes = {tid: history for tid, history in self._shapes.items() if tid in live}
         for tid in changed_identity:
             self.selector.identity_changed(tid, stamp)
         target = self.selector.update(stamp, world_tracks)
@@ -559,16 +571,26 @@ class TrackFuser:
             return self.camera
 
     def _shape_factor(self, track: ScreenTrack) -> float:
-        """Covariance multiplier of this frame's box: ``shape_jump_variance_factor`` if its aspect jumped."""
-        history = self._aspects.setdefault(track.track_id, deque(maxlen=SHAPE_HISTORY))
+        """Covariance multiplier of this frame's box: ``shape_jump_variance_factor`` if it is suspect, else 1.
+
+        Suspect: its aspect jumped up, or its height dropped, against the track's recent boxes.
+        """
+        config = self.fusion_config
+        history = self._shapes.setdefault(track.track_id, deque(maxlen=SHAPE_HISTORY))
         aspect = float(track.size[1] / track.size[0])
-        ratio = self.fusion_config.shape_jump_ratio
-        jumped = ratio > 0 and len(history) >= 2 and aspect > ratio * float(np.median(history))
-        history.append(aspect)
+        height = float(track.size[1])
+        aspects = [a for a, _ in history]
+        heights = [h for _, h in history][-HEIGHT_HISTORY:]
+        jumped = config.shape_jump_ratio > 0 and len(aspects) >= 2 and aspect > config.shape_jump_ratio * float(
+            np.median(aspects))
+        dropped = config.height_drop_ratio > 0 and len(heights) >= 2 and height < config.height_drop_ratio * float(
+            np.median(heights))
+        history.append((aspect, height))
         if jumped:
             self._count("shape_jump")
-            return self.fusion_config.shape_jump_variance_factor
-        return 1.0
+        if dropped:
+            self._count("height_drop")
+        return config.shape_jump_variance_factor if jumped or dropped else 1.0
 
     def _continue_filters(self, stamp: float, world_tracks: list[WorldTrack]) -> None:
         """A track the selection joined to an earlier one (``selector.continued``) continues that one's filter too.

@@ -37,7 +37,12 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "fusion.shape_jump_ratio": ("A box taller for its width than this many times its track's median aspect (last "
                                 "5 boxes) is suspect (spray or wake below the hull): its position covariance is "
                                 "multiplied by shape_jump_variance_factor. 0: off.", (0.0, 100.0)),
-    "fusion.shape_jump_variance_factor": ("Covariance multiplier of a box whose aspect jumped.", (1.0, 1e6)),
+    "fusion.shape_jump_variance_factor": ("Covariance multiplier of a box whose aspect jumped (or height "
+                                          "dropped).", (1.0, 1e6)),
+    "fusion.height_drop_ratio": ("A box less than this share as tall as its track's last 3 boxes (median) is "
+                                 "suspect (the detector boxed only the vessel's cabin or console, whose bottom is "
+                                 "not the waterline): its position covariance is multiplied by "
+                                 "shape_jump_variance_factor. 0: off.", (0.0, 0.999)),
     "fusion.cue_covariance": ("3x3 covariance (row-major) of the ideal-y errors of the position, width and "
                               "height cues, px^2 (fitted).", None),
     "fusion.cue_x_std_px": ("Std of the box reference point's x, ideal px (fitted).", (1e-6, 1e4)),
