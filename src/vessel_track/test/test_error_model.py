@@ -49,6 +49,10 @@ def test_fit_tool_writes_and_merges_the_parameter_file(tmp_path, capsys):
     assert block["n_points"] == 3
     assert ErrorModel.from_params(block).expected_error_m(100) == pytest.approx(5.0)
     assert "5.00 m per 100 m" in capsys.readouterr().out
+    assert block["source"] == "fit on " + f"{tmp_path.name}/scores.csv"
+    assert main(["fit", str(scores), "--out", str(out), "--source", "online pipeline, videos 7-12"]) == 0
+    assert yaml.safe_load(out.read_text())["fuser"]["ros__parameters"]["error_model"]["source"] == \
+        "online pipeline, videos 7-12"
 
 
 def test_fit_tool_keeps_the_documented_parameter_file(tmp_path):

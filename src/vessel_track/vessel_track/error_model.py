@@ -169,12 +169,15 @@ def main(argv: list[str] | None = None) -> int:
     fit.add_argument("--kind", choices=KINDS, default="origin", help="origin (the paper's), affine, quantile")
     fit.add_argument("--quantile", type=float, default=0.8, help="share of errors below the line (quantile)")
     fit.add_argument("--node", default="fuser", help="node block to write into (default: fuser)")
+    fit.add_argument("--source", default=None,
+                     help="where the scores come from, for the file (error_model.source; default 'fit on DIR/FILE')")
     args = parser.parse_args(argv)
     try:
         parts = [read_scores_csv(p) for p in args.scores]
         d = np.concatenate([p[0] for p in parts])
         e = np.concatenate([p[1] for p in parts])
-        source = "fit on " + ", ".join(f"{p.parent.name}/{p.name}" if p.parent.name else p.name for p in args.scores)
+        source = args.source or "fit on " + ", ".join(f"{p.parent.name}/{p.name}" if p.parent.name else p.name
+                                                      for p in args.scores)
         model = fit_error_model(d, e, args.kind, args.quantile, source=source)
         update_params_file(args.out, args.node, "error_model", model.to_params())
     except VesselError as error:
