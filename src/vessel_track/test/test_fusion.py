@@ -187,6 +187,14 @@ def test_a_parameter_file_with_the_old_fusion_anchor_says_where_it_went():
     assert settings.for_hand_boxes().fusion.weights_mode == settings.fusion.weights_mode
 
 
+def _one_track_through(cam, config, box_rows):
+    """(fuser, its output for track "A") of boxes fed one per frame, 4 s apart."""
+    fuser = TrackFuser(cam, MODEL, fusion_config=config)
+    outs = [{w.screen.track_id: w for w in fuser.update(1000.0 + 4 * k, [_track("A", *_centre_size(b))])}["A"]
+            for k, b in enumerate(box_rows)]
+    return fuser, outs
+
+
 def test_a_box_that_took_in_spray_is_trusted_less():
     """A box suddenly taller for its width (spray or wake below a fast hull) reads too near: its covariance grows.
 
@@ -199,14 +207,8 @@ def test_a_box_that_took_in_spray_is_trusted_less():
     spray = boxes.copy()
     spray[7, 3] += 1.2 * (boxes[7, 3] - boxes[7, 1])   # the same hull, the box 2.2 times as tall below it
 
-    def run(config, box_rows):
-        fuser = TrackFuser(cam, MODEL, fusion_config=config)
-        outs = [{w.screen.track_id: w for w in fuser.update(1000.0 + 4 * k, [_track("A", *_centre_size(b))])}["A"]
-                for k, b in enumerate(box_rows)]
-        return fuser, outs
-
-    off_fuser, off = run(FusionConfig(), spray)
-    on_fuser, on = run(FusionConfig(shape_jump_ratio=1.5, shape_jump_variance_factor=9.0), spray)
+    off_fuser, off = _one_track_through(cam, FusionConfig(), spray)
+    on_fuser, on = _one_track_through(cam, FusionConfig(shape_jump_ratio=1.5, shape_jump_variance_factor=9.0), spray)
     assert on_fuser.counts.get("shape_jump") == 1 and "shape_jump" not in off_fuser.counts
     np.testing.assert_allclose(on[7].measured_covariance, 9.0 * off[7].measured_covariance)
     np.testing.assert_allclose(on[6].measured_covariance, off[6].measured_covariance)
@@ -217,7 +219,7 @@ def test_a_box_that_took_in_spray_is_trusted_less():
     centre_x = (boxes[:, 0] + boxes[:, 2]) / 2
     half_width = (boxes[:, 2] - boxes[:, 0]) / 2 * 0.88 ** np.arange(10)   # bow slowly towards the camera
     turning[:, 0], turning[:, 2] = centre_x - half_width, centre_x + half_width
-    assert "shape_jump" not in run(FusionConfig(shape_jump_ratio=1.5), turning)[0].counts
+    assert "shape_jump" not in _one_track_through(cam, FusionConfig(shape_jump_ratio=1.5), turning)[0].counts
     hand = FuserSettings.from_params({"fusion": {"shape_jump_ratio": 1.5}}).for_hand_boxes()
     assert hand.fusion.shape_jump_ratio == 0.0
     for bad in ({"shape_jump_ratio": 0.5}, {"shape_jump_ratio": float("nan")}, {"shape_jump_variance_factor": 0.5}):
@@ -317,14 +319,8 @@ def test_a_box_of_only_the_cabin_is_trusted_less():
     cabin = boxes.copy()
     cabin[7, 3] -= 0.5 * (boxes[7, 3] - boxes[7, 1])   # the top half of the boat only
 
-    def run(config, box_rows):
-        fuser = TrackFuser(cam, MODEL, fusion_config=config)
-        outs = [{w.screen.track_id: w for w in fuser.update(1000.0 + 4 * k, [_track("A", *_centre_size(b))])}["A"]
-                for k, b in enumerate(box_rows)]
-        return fuser, outs
-
-    off_fuser, off = run(FusionConfig(), cabin)
-    on_fuser, on = run(FusionConfig(height_drop_ratio=0.75, shape_jump_variance_factor=9.0), cabin)
+    off_fuser, off = _one_track_through(cam, FusionConfig(), cabin)
+    on_fuser, on = _one_track_through(cam, FusionConfig(height_drop_ratio=0.75, shape_jump_variance_factor=9.0), cabin)
     assert on_fuser.counts.get("height_drop") == 1 and "height_drop" not in off_fuser.counts
     np.testing.assert_allclose(on[7].measured_covariance, 9.0 * off[7].measured_covariance)
     true_range = np.hypot(*path[7])
@@ -332,7 +328,7 @@ def test_a_box_of_only_the_cabin_is_trusted_less():
     error_on, error_off = (np.hypot(*(o[7].position - path[7])) for o in (on, off))
     assert error_on < 0.5 * error_off                                    # ... which the suspicious filter discounts
     going_away = _boxes_at(cam, np.column_stack([100.0 + 3.0 * np.arange(10) * 4, 80.0 + 2.0 * np.arange(10) * 4]))
-    assert "height_drop" not in run(FusionConfig(height_drop_ratio=0.75), going_away)[0].counts
+    assert "height_drop" not in _one_track_through(cam, FusionConfig(height_drop_ratio=0.75), going_away)[0].counts
     hand = FuserSettings.from_params({"fusion": {"height_drop_ratio": 0.75}}).for_hand_boxes()
     assert hand.fusion.height_drop_ratio == 0.0
     for bad in (1.0, -0.1, float("nan")):
