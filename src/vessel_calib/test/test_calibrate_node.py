@@ -246,3 +246,38 @@ def test_command_contract_on_shared_data(dataset, tmp_path, capsys):
         assert key in block
     status, _, err = run_cli(["--data", dataset.path, "--videos", "6", "--out", tmp_path / "d.yaml"], capsys)
     assert status == 2 and "no labelled pairs" in err and not (tmp_path / "d.yaml").exists()
+
+
+def test_water_level_with_a_pairs_csv(tmp_path, capsys):
+    """--water-level fits pairs with a time column for the tide and writes the level.
+
+    Without times, or outside the file: a one-line error and no file.
+    """
+    from test_water_level import T0, tidal_pairs
+
+    screen, gps, levels = tidal_pairs(40, seed=3)
+    stamps = T0 + (0.97 - levels) / 0.35 * 3600  # the times the synthetic tide gave these levels
+    tide = tmp_path / "tide.csv"
+    tide.write_text(f"utc_s,level_m\n{T0},0.97\n{T0 + 3600},0.62\n")
+    rows = ["x,y,lat,lon,t"] + [",".join(repr(float(v)) for v in (*s, *g, t))
+                                for s, g, t in zip(screen, gps, stamps, strict=True)]
+    pairs = tmp_path / "pairs.csv"
+    pairs.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "camera.yaml"
+    status, stdout, err = run_cli(["--pairs-csv", pairs, *CAM_ARGS, "--box-anchor", "0.65", "--water-level", tide,
+                                   "--out", out, "--no-picture"], capsys)
+    assert status == 0, err
+    assert "water level" in stdout and "camera 2." in stdout
+    model = load_camera_yaml(out)
+    assert model.water_level_m == pytest.approx(levels.mean(), abs=1e-6)
+    assert model.height_m == pytest.approx(2.6 + 0.9 - levels.mean(), abs=0.02)
+    assert "water_level_m" in out.read_text().split("/**")[0]  # said in the header too
+    untimed = write_pairs(tmp_path / "untimed.csv", screen, gps)
+    status, _, err = run_cli(["--pairs-csv", untimed, *CAM_ARGS, "--water-level", tide, "--out",
+                              tmp_path / "untimed.yaml", "--no-picture"], capsys)
+    assert status == 2 and "time column" in err and not (tmp_path / "untimed.yaml").exists()
+    short = tmp_path / "short.csv"
+    short.write_text(f"utc_s,level_m\n{T0},0.97\n{T0 + 600},0.91\n")
+    status, _, err = run_cli(["--pairs-csv", pairs, *CAM_ARGS, "--water-level", short, "--out",
+                              tmp_path / "short.yaml", "--no-picture"], capsys)
+    assert status == 2 and "outside the water-level file" in err and not (tmp_path / "short.yaml").exists()
