@@ -152,7 +152,8 @@ PER_FRAME_PICKS = ("gps", "score")
 
 
 def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIVE_PX,
-                             anchor_offset: float = 0.0, pick: str = "gps", water_level=None) -> list[str]:
+                             anchor_offset: float = 0.0, pick: str = "gps", water_level=None,
+                             water_level_max_hold_s: float = 0.0) -> list[str]:
     """``video,t_utc_s,lat,lon`` lines: one box per frame back-projected, a baseline without tracking.
 
     ``pick``: ``gps``, the box nearest the vessel's projected GPS (the right box picked by the truth; frames
@@ -160,7 +161,8 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
     system without tracker and selection would publish). The box is read where the fuser reads it: the
     calibration's reference point plus ``anchor_offset``. What the tracker and fuser have to beat, as the
     per-frame back-projection of hand boxes is for hand boxes. With ``water_level`` (a ``WaterLevelTable``) each
-    frame is read through the camera at its water level, as the fuser does.
+    frame is read through the camera at its water level, as the fuser does (the end levels held for
+    ``water_level_max_hold_s``, the calibration's level beyond).
     """
     from vessel_track.pipeline import PREDICTION_HEADER, prediction_line
 
@@ -179,7 +181,8 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
                 continue
             box = frame.boxes[int(np.argmin(found[0]))]
         seen_by = camera
-        if water_level is not None and math.isfinite(level := water_level.level_at(frame.stamp, 900.0)):
+        level = math.nan if water_level is None else water_level.level_at(frame.stamp, water_level_max_hold_s)
+        if math.isfinite(level):
             seen_by = camera.at_water_level(level)
         (x, y), = seen_by.box_reference_points(box, anchor_offset)
         lat, lon, valid = seen_by.screen_to_gps(x, y)
@@ -291,7 +294,8 @@ def main(argv: list[str] | None = None) -> int:
                 settings = load_fuser_settings(args.params or default_params_path())
                 water_level = settings.water_level.load() if math.isfinite(camera.water_level_m) else None
                 lines = per_frame_backprojection(dataset, camera, frames, args.radius,
-                                                 settings.fusion.anchor_offset, args.pick, water_level)
+                                                 settings.fusion.anchor_offset, args.pick, water_level,
+                                                 settings.water_level.max_hold_s)
                 _atomic_lines(args.per_frame_out, lines)
                 print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
             shares = top_box_share(dataset, camera, frames, args.radius)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import os
 import sys
@@ -373,24 +372,22 @@ def tide_overrides(calibration: Path, params_file: Path) -> dict:
     """Fuser parameter overrides that turn the tide correction off when ``calibration`` cannot be corrected.
 
     The parameter file may name a water-level file (``water_level.file``) while the calibration was fitted
-    without one (``--calib`` an older file, or labels outside the file's times): the fuser would refuse to start,
-    so the demo says so and runs without the correction.
+    without one (``--calib`` an older file, or labels outside the file's times): the fuser node would refuse to
+    start, so the demo says so and runs without the correction (``FuserSettings.for_camera``, which the offline
+    pass applies too).
     """
-    import math
-
     from vessel_calib.params import load_camera_yaml
     from vessel_track.fuser_settings import load_fuser_settings
 
-    wanted = load_fuser_settings(params_file).water_level.file
-    if wanted and not math.isfinite(load_camera_yaml(calibration).water_level_m):
-        log(f"{calibration} has no camera.water_level_m (calibrated without --water-level): the fuser runs without "
-            f"the tide correction of {wanted}")
-        return {"water_level": {"file": ""}}
+    settings, note = load_fuser_settings(params_file).for_camera(load_camera_yaml(calibration), str(calibration))
+    if note:
+        log(note)
+        return {"water_level": {"file": settings.water_level.file}}
     return {}
 
 
 def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Path, params_file: Path,
-                               hand_boxes: bool = False, overrides: dict | None = None) -> Path:
+                               hand_boxes: bool = False) -> Path:
     """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
 
     The same tracker and fuser cores the nodes run, with the parameter file's settings, then the trajectory
@@ -407,10 +404,7 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     from vessel_track.tracker import load_tracker_config
 
     camera = load_camera_yaml(calibration)
-    settings = load_fuser_settings(params_file)
-    if (overrides or {}).get("water_level"):
-        settings = dataclasses.replace(settings, water_level=dataclasses.replace(settings.water_level,
-                                                                                 **overrides["water_level"]))
+    settings, _ = load_fuser_settings(params_file).for_camera(camera)  # the note was logged by tide_overrides
     config = PipelineConfig(mode="offline", tracker=load_tracker_config(params_file),
                             settings=settings.for_hand_boxes() if hand_boxes else settings)
     results = []
@@ -499,8 +493,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         predictions, tracks = export_recordings(runs, out)
         from vessel_track.demo_report import write_report
 
-        offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels",
-                                             fuser_overrides)
+        offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
         summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
                                "labels" if args.detections == "labels" else "frames")
         (out / "summary.json").write_text(json.dumps(summary, indent=2))

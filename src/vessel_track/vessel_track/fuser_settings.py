@@ -16,6 +16,7 @@ Keys may be nested (YAML) or flattened with dots (ROS parameter names); unknown 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,6 +117,19 @@ class FuserSettings:
         boxes fed as detections (``--detections labels``) need neither: their shape changes when the vessel turns.
         """
         return dataclasses.replace(self, fusion=dataclasses.replace(self.fusion, **HAND_BOX_FUSION))
+
+    def for_camera(self, camera, where: str = "the calibration") -> tuple[FuserSettings, str]:
+        """These settings for ``camera``, and a note when they had to change ('' otherwise).
+
+        A water-level file (``water_level.file``) needs a calibration fitted with it (``camera.water_level_m``);
+        for one without (an older file, labels outside the file's times) the correction is dropped, and the note,
+        naming ``where``, says so. The fuser node refuses such a pair instead (``TrackFuser``).
+        """
+        if not self.water_level.file or math.isfinite(camera.water_level_m):
+            return self, ""
+        note = (f"{where} has no camera.water_level_m (calibrated without --water-level): running without the tide "
+                f"correction of {self.water_level.file}")
+        return dataclasses.replace(self, water_level=dataclasses.replace(self.water_level, file="")), note
 
     def to_params(self) -> dict:
         """Nested parameter dict (the ``fuser`` block's ``ros__parameters`` minus topics)."""

@@ -579,10 +579,10 @@ def main(argv: list[str] | None = None) -> int:
         camera, camera_source = load_camera(args.calib, dataset)
         params_path = args.params if args.params is not None else default_params_path()
         settings = load_fuser_settings(params_path)
-        if settings.water_level.file and not args.leave_one_out and not math.isfinite(camera.water_level_m):
-            print(f"note: {camera_source} has no camera.water_level_m (calibrated without --water-level): running "
-                  f"without the tide correction of {settings.water_level.file}", file=sys.stderr)
-            settings = dataclasses.replace(settings, water_level=dataclasses.replace(settings.water_level, file=""))
+        if not args.leave_one_out:
+            settings, note = settings.for_camera(camera, camera_source)
+            if note:
+                print(f"note: {note}", file=sys.stderr)
         if args.detections == "labels":
             frames = label_detections(dataset, videos)
             settings = settings.for_hand_boxes()
