@@ -75,6 +75,7 @@ def test_vessel_msgs_round_trip(tmp_path):
         is_target=True,
         score=1.5,
         confidence=0.8,
+        class_id="vessel",
         status=Track.STATUS_CONFIRMED,
         detection_count=12,
         first_seen=bag_io.header(stamp, "").stamp,
@@ -112,6 +113,7 @@ def test_vessel_msgs_round_trip(tmp_path):
     assert t == pytest.approx(synthetic.START_UTC)
     got = message.tracks[0]
     assert (got.id, got.is_target, got.detection_count, got.latitude) == ("7", True, 12, 32.7033)
+    assert got.class_id == "vessel"
     assert got.bbox.center.position.y == 420.0
     assert (got.detection_bbox.center.position.x, got.detection_bbox.size_y) == (641.0, 19.0)
     np.testing.assert_array_equal(got.position_covariance, [25.0, 0.0, 0.0, 25.0])

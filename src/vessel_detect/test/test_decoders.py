@@ -152,3 +152,19 @@ def test_decode_dispatches_and_returns_empty_for_no_candidates(layout):
     shape = {"yolox": (1, POINTS, 85), "yolov5": (1, 3 * POINTS, 85), "yolov8": (1, 84, POINTS)}[layout.value]
     result = decode(np.zeros(shape, np.float32), layout, INPUT_HW, np.array([BOAT]), 0.1)
     assert len(result) == 0 and result.boxes_xyxy.shape == (0, 4)
+
+
+def test_the_target_class_score_comes_with_every_candidate_whatever_its_best_class():
+    out = yolox_output([(100.0, 60.0, 30.0, 12.0, 8, 0.8, 1, 0.9), (250.0, 200.0, 90.0, 40.0, 16, 0.5, 0, 0.6)],
+                       num_classes=2)
+    row, _, _ = yolox_row_index(100.0, 60.0, 8)
+    out[0, row, 5 + 0] = 0.25  # another vessel, a little like the target
+    result = decode_yolox(out, INPUT_HW, score_threshold=0.1, target_class=0)
+    by_x = np.argsort(result.boxes_xyxy[:, 0])
+    assert result.class_ids[by_x].tolist() == [1, 0]
+    np.testing.assert_allclose(result.target_scores[by_x], [0.8 * 0.25, 0.5 * 0.6], rtol=1e-6)
+    assert np.all(np.isnan(decode_yolox(out, INPUT_HW, score_threshold=0.1).target_scores))
+    v8 = np.zeros((1, 6, POINTS), np.float32)
+    v8[0, :4, 0] = [50, 50, 10, 10]
+    v8[0, 4:, 0] = [0.3, 0.7]
+    assert decode_yolov8(v8, score_threshold=0.1, target_class=0).target_scores.tolist() == pytest.approx([0.3])

@@ -20,7 +20,7 @@ def test_rows_round_trip_grouped_by_frame(tmp_path):
     boxes, scores = grouped[(13, 0)]
     np.testing.assert_allclose(boxes, [[10.0, 20.0, 30.0, 40.0], [1, 2, 3, 4]])
     np.testing.assert_allclose(scores, [0.9877, 0.5])
-    assert csv_row(1, 2, [1, 2, 3, 4], 0.5)[-1] == "8"     # COCO boat unless told
+    assert csv_row(1, 2, [1, 2, 3, 4], 0.5)[-2:] == ["8", ""]     # COCO boat unless told; no p_target
 
 
 def test_bad_files_name_the_file_the_row_and_the_fix(tmp_path):
@@ -35,3 +35,15 @@ def test_bad_files_name_the_file_the_row_and_the_fix(tmp_path):
     short.write_text("video,frame,x1,y1,x2,y2\n13,0,1,2,3,4\n")
     with pytest.raises(DataError, match="lacks column"):
         read_detections_csv(short)
+
+
+def test_p_target_is_written_and_read_as_the_confidence(tmp_path):
+    path = _write(tmp_path / "run.csv", [csv_row(13, 0, [1, 2, 3, 4], 0.9, class_id=1, p_target=0.125),
+                                         csv_row(13, 0, [5, 6, 7, 8], 0.5, class_id=0)])
+    rows = path.read_text().splitlines()
+    assert rows[0].endswith(",p_target") and rows[1].endswith(",1,0.1250") and rows[2].endswith(",0,")
+    _, confidences = read_detections_csv(path)[(13, 0)]
+    np.testing.assert_allclose(confidences, [0.125, 0.5])
+    old = tmp_path / "old.csv"  # files written before the column existed still read
+    old.write_text("video,frame,x1,y1,x2,y2,score,class_id\n13,0,1,2,3,4,0.5,8\n")
+    assert read_detections_csv(old)[(13, 0)][1].tolist() == [0.5]

@@ -178,3 +178,14 @@ def test_bad_input_prints_one_error_line_and_exits_2(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text("detector:\n  ros__parameters:\n    scor_threshold: 0.3\n")
     assert detect_cli.main(["recall", "--detections", str(tmp_path / "none.csv"), "--params", str(bad)]) == 2
+
+
+def test_recall_at_counts_frames_whose_most_likely_box_is_the_vessel():
+    labels = {(7, 0): np.array([[100, 450, 160, 480]], float), (7, 1): np.array([[500, 450, 560, 480]], float)}
+    detections = {
+        (7, 0): (np.array([[105, 452, 158, 478], [800, 500, 850, 520]], float), np.array([0.9, 0.4])),
+        (7, 1): (np.array([[505, 452, 558, 478], [800, 500, 850, 520]], float), np.array([0.3, 0.6])),
+    }
+    result = detect_cli.recall_at(labels, detections, 0.1)
+    assert (result.frame_hits, result.top_hits) == (2, 1) and result.top_rate == pytest.approx(0.5)
+    assert detect_cli.recall_at(labels, detections, 0.5).top_hits == 1  # the vessel's 0.3 box is gone at 0.5

@@ -291,4 +291,5 @@ def rescore_detections(detections, bgr: np.ndarray, model: AppearanceModel,
                                       calibration_scale, combine, nested_overlap)
     kept = detections.take(keep)
     kept.scores = new_scores
+    kept.p_target = np.asarray(new_scores, dtype=float).copy()
     return kept

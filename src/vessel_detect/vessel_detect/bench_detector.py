@@ -1,5 +1,8 @@
-"""Benchmark of the detector (``./vessel bench detector``): the core per mode, and the node against the core.
+"""Benchmark of the detector (``./vessel bench detector``): default against baseline, modes, node against core.
 
+0. The shipped default (``--params``: ``config/aitas.yaml`` with the calibration) and the baseline
+   (``--baseline-params``: the same with ``config/detector_coco.yaml`` on top, the COCO YOLOX-Nano tiled over the
+   band) timed on the same frames in interleaved rounds: ``default_fps``, ``baseline_fps`` and their ratio.
 1. The core alone on challenge frames: milliseconds per frame (median, p95) of ``detect`` for the ``full``,
    ``band`` and ``tiled`` modes (the other parameters as the node's defaults or ``--params``), and of the JPEG
    decode.
@@ -29,7 +32,7 @@ import cv2
 import numpy as np
 
 from vessel_calib.errors import DataError, VesselError
-from vessel_detect.detector_params import build_detector, load_params_file, open_model
+from vessel_detect.detector_params import build_detector, load_params_files, open_model
 
 MODES = ("full", "band", "tiled")
 
@@ -95,7 +98,7 @@ class NodeDriver:
     round trip.
     """
 
-    def __init__(self, jpegs: list[bytes], params_file: str | None, timeout_s: float):
+    def __init__(self, jpegs: list[bytes], params_files: list[str], timeout_s: float):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -111,7 +114,7 @@ class NodeDriver:
             raise DataError(f"{exe} is not installed: run ./vessel setup")
         domain = random.randint(1, 100)
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-        args = [str(exe), "--ros-args"] + (["--params-file", params_file] if params_file else [])
+        args = [str(exe), "--ros-args"] + [arg for path in params_files for arg in ("--params-file", path)]
         self.log_path = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_detector_node_{os.getpid()}.log"
         with open(self.log_path, "w") as log:
             self.process = subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT,
@@ -197,7 +200,8 @@ def run(args: argparse.Namespace) -> dict:
     if data is None:
         raise DataError("no dataset folder: pass --data DIR or set VESSEL_DATA (default ../shared/aitas)")
     dataset = Dataset(data)
-    values, params_camera = load_params_file(args.params)
+    params_files = [p for p in (args.params, args.calib, args.detector_params) if p]
+    values, params_camera = load_params_files(params_files)
     camera = params_camera or dataset.camera_model()
     paths = pick_frames(dataset, args.frames)
     jpegs = [p.read_bytes() for p in paths]
@@ -207,7 +211,10 @@ def run(args: argparse.Namespace) -> dict:
           f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (other work on the machine makes these figures noisy)")
     model = open_model(values)
     result: dict = {"frames": len(jpegs), "cpu_count": cores, "load_average": list(load),
-                    "intra_op_threads": int(values["intra_op_threads"]), "modes": {}}
+                    "intra_op_threads": int(values["intra_op_threads"]), "params": params_files, "modes": {}}
+    if args.baseline_params:
+        baseline_files = [p for p in (args.params, args.calib) if p] + [args.baseline_params]
+        result.update(compare_with_baseline(values, camera, model, baseline_files, jpegs, args.rounds))
     decode_all: list[float] = []
     for mode in args.modes:
         mode_values = dict(values, mode=mode)
@@ -229,7 +236,7 @@ def run(args: argparse.Namespace) -> dict:
         result["node"] = {"skipped": reason}
         return result
     detector = build_detector(values, camera, model)
-    driver = NodeDriver(jpegs, args.params, args.timeout_s)
+    driver = NodeDriver(jpegs, params_files, args.timeout_s)
     per_round = max(1, args.node_frames // args.rounds)
     core_frames = core_seconds = node_frames = node_seconds = 0.0
     rounds = []
@@ -262,11 +269,53 @@ def run(args: argparse.Namespace) -> dict:
     return result
 
 
+def compare_with_baseline(values, camera, model, baseline_files: list[str], jpegs: list[bytes],
+                          rounds: int) -> dict:
+    """frames/s (decode + detect) of the default and the baseline detector, interleaved in ``rounds``."""
+    baseline_values, baseline_camera = load_params_files(baseline_files)
+    default = build_detector(values, camera, model)
+    baseline = build_detector(baseline_values, baseline_camera or camera)
+    seconds = {"default": 0.0, "baseline": 0.0}
+    frames = 0
+    for _ in range(max(1, rounds)):
+        for name, detector in (("default", default), ("baseline", baseline)):
+            decode_ms, detect_ms = time_core(detector, jpegs)
+            seconds[name] += (sum(decode_ms) + sum(detect_ms)) / 1000.0
+        frames += len(jpegs)
+    default_fps, baseline_fps = frames / seconds["default"], frames / seconds["baseline"]
+    runs = {name: len(d.windows(d.reference_wh)) for name, d in (("default", default), ("baseline", baseline))}
+    print(f"  shipped default: {default_fps:6.2f} frames/s ({runs['default']} network run(s) per frame, "
+          f"{default.model.path.name})")
+    print(f"  COCO baseline:   {baseline_fps:6.2f} frames/s ({runs['baseline']} network run(s) per frame, "
+          f"{baseline.model.path.name})")
+    print(f"  default / baseline: {default_fps / baseline_fps:.2f} ({max(1, rounds)} interleaved rounds of "
+          f"{len(jpegs)} frames, decode included)")
+    return {"default_fps": default_fps, "baseline_fps": baseline_fps,
+            "default_over_baseline": default_fps / baseline_fps,
+            "default_model": str(default.model.path), "baseline_model": str(baseline.model.path),
+            "default_runs_per_frame": runs["default"], "baseline_runs_per_frame": runs["baseline"]}
+
+
+def _repo_file(relative: str) -> str | None:
+    from vessel_calib.dataset import repo_root
+
+    path = Path(repo_root()) / relative
+    return str(path) if path.is_file() else None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Command-line interface."""
     parser = argparse.ArgumentParser(prog="vessel bench detector", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
-    parser.add_argument("--params", help="parameter YAML (detector: and camera: blocks); default: node defaults")
+    parser.add_argument("--params", default=_repo_file("config/aitas.yaml"),
+                        help="parameter YAML of the default (detector: block; default config/aitas.yaml)")
+    parser.add_argument("--calib", default=_repo_file("config/aitas_camera.yaml"),
+                        help="calibration YAML (default config/aitas_camera.yaml)")
+    parser.add_argument("--detector-params", default=None,
+                        help="loaded on top of --params and --calib for the default, e.g. config/detector_trained.yaml")
+    parser.add_argument("--baseline-params", default=_repo_file("config/detector_coco.yaml"),
+                        help="loaded on top of --params for the baseline (default config/detector_coco.yaml; '' "
+                             "for none)")
     parser.add_argument("--frames", type=int, default=30, help="frames for the per-mode timings")
     parser.add_argument("--modes", type=lambda s: [m for m in s.split(",") if m], default=list(MODES))
     parser.add_argument("--node-frames", type=int, default=30, help="frames sent through the node")

@@ -45,12 +45,19 @@ class Candidates:
         boxes_xyxy: ``(N, 4)`` float64 corners ``x1, y1, x2, y2``.
         scores: ``(N,)`` float64 confidence (objectness x class score where the layout has objectness).
         class_ids: ``(N,)`` int64 index into the model's class list.
+        target_scores: ``(N,)`` float64 score of the target class (objectness x its class score) whatever the
+            best class is; NaN when no target class was asked for.
 
     """
 
     boxes_xyxy: np.ndarray
     scores: np.ndarray
     class_ids: np.ndarray
+    target_scores: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.target_scores is None:
+            object.__setattr__(self, "target_scores", np.full(self.scores.shape, np.nan))
 
     @staticmethod
     def empty() -> Candidates:
@@ -161,6 +168,17 @@ def _select(
     return keep, best_score[keep].astype(np.float64), ids_of_column[best_column[keep]].astype(np.int64)
 
 
+def _target_scores(rows: np.ndarray, first_class_column: int, objectness_column: int | None,
+                   target_class: int | None) -> np.ndarray:
+    """Objectness x the target class's score of each row; NaN without a target class."""
+    if target_class is None or target_class < 0:
+        return np.full(rows.shape[0], np.nan)
+    scores = rows[:, first_class_column + int(target_class)].astype(np.float64)
+    if objectness_column is not None:
+        scores = scores * rows[:, objectness_column]
+    return scores
+
+
 def _centre_size_to_xyxy(cx: np.ndarray, cy: np.ndarray, w: np.ndarray, h: np.ndarray) -> np.ndarray:
     boxes = np.stack([cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0], axis=1).astype(np.float64)
     return boxes.reshape(-1, 4)
@@ -190,6 +208,7 @@ def decode_yolox(
     class_indices: np.ndarray | None = None,
     score_threshold: float = 0.0,
     strides: tuple[int, ...] = DEFAULT_STRIDES,
+    target_class: int | None = None,
 ) -> Candidates:
     """Decode a raw YOLOX output: ``cx = (x + grid_x) * stride``, ``w = exp(log w) * stride``.
 
@@ -215,7 +234,8 @@ def decode_yolox(
     h = np.exp(np.clip(rows[:, 3], -_MAX_LOG_SIZE, _MAX_LOG_SIZE)) * stride
     boxes = _centre_size_to_xyxy(cx, cy, w, h)
     ok = _finite_rows(boxes)
-    return Candidates(boxes[ok], scores[ok], class_ids[ok])
+    target = _target_scores(rows, 5, 4, target_class)
+    return Candidates(boxes[ok], scores[ok], class_ids[ok], target[ok])
 
 
 _GRID_CACHE: dict[tuple[tuple[int, int], tuple[int, ...]], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -247,6 +267,7 @@ def decode_yolov5(
     output: np.ndarray,
     class_indices: np.ndarray | None = None,
     score_threshold: float = 0.0,
+    target_class: int | None = None,
 ) -> Candidates:
     """Decode a YOLOv5-style output: rows of decoded ``cx, cy, w, h`` (input pixels), objectness, classes."""
     array = _as_2d(output)
@@ -257,13 +278,14 @@ def decode_yolov5(
     rows = array[keep].astype(np.float64)
     boxes = _centre_size_to_xyxy(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3])
     ok = _finite_rows(boxes)
-    return Candidates(boxes[ok], scores[ok], class_ids[ok])
+    return Candidates(boxes[ok], scores[ok], class_ids[ok], _target_scores(rows, 5, 4, target_class)[ok])
 
 
 def decode_yolov8(
     output: np.ndarray,
     class_indices: np.ndarray | None = None,
     score_threshold: float = 0.0,
+    target_class: int | None = None,
 ) -> Candidates:
     """Decode a YOLOv8-style output: columns of decoded ``cx, cy, w, h`` then class scores, no objectness."""
     array = _as_2d(output).T
@@ -274,7 +296,7 @@ def decode_yolov8(
     rows = array[keep].astype(np.float64)
     boxes = _centre_size_to_xyxy(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3])
     ok = _finite_rows(boxes)
-    return Candidates(boxes[ok], scores[ok], class_ids[ok])
+    return Candidates(boxes[ok], scores[ok], class_ids[ok], _target_scores(rows, 4, None, target_class)[ok])
 
 
 def decode(
@@ -284,11 +306,15 @@ def decode(
     class_indices: np.ndarray | None = None,
     score_threshold: float = 0.0,
     strides: tuple[int, ...] = DEFAULT_STRIDES,
+    target_class: int | None = None,
 ) -> Candidates:
-    """Decode one output tensor of the given layout into candidates in network-input pixels."""
+    """Decode one output tensor of the given layout into candidates in network-input pixels.
+
+    ``target_class`` (a column index) also returns each candidate's score for that class (``target_scores``).
+    """
     layout = OutputLayout(layout)
     if layout is OutputLayout.YOLOX:
-        return decode_yolox(output, input_hw, class_indices, score_threshold, strides)
+        return decode_yolox(output, input_hw, class_indices, score_threshold, strides, target_class)
     if layout is OutputLayout.YOLOV5:
-        return decode_yolov5(output, class_indices, score_threshold)
-    return decode_yolov8(output, class_indices, score_threshold)
+        return decode_yolov5(output, class_indices, score_threshold, target_class)
+    return decode_yolov8(output, class_indices, score_threshold, target_class)

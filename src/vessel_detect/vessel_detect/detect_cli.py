@@ -1,7 +1,8 @@
 """Offline detector tools over a dataset folder laid out like ``../shared/aitas`` (``./vessel detect ...``).
 
 - ``run``: the detector core with the node's parameters over every frame; writes
-  ``video,frame,x1,y1,x2,y2,score,class_id`` (full-resolution pixels, class_id indexes the model's classes).
+  ``video,frame,x1,y1,x2,y2,score,class_id,p_target`` (full-resolution pixels, class_id indexes the model's
+  classes, p_target the probability of being the vessel of interest).
 - ``recall``: recall of the vessel of interest on the hand-labelled frames (a hit: IoU >= 0.3 with a primary
   hand box) and the mean number of other detections per frame below the horizon.
 - ``export-labels``: YOLO training data from the vessel's GPS projected through the calibration (the paper's
@@ -102,8 +103,9 @@ def detections_csv_text(rows: Iterable[tuple[int, int, Detections]]) -> str:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
     for video, frame, dets in rows:
-        for box, score, class_id in zip(dets.boxes_xyxy, dets.scores, dets.class_ids, strict=True):
-            writer.writerow(csv_row(video, frame, box, score, class_id))
+        for box, score, class_id, p_target in zip(dets.boxes_xyxy, dets.scores, dets.class_ids, dets.p_target,
+                                                  strict=True):
+            writer.writerow(csv_row(video, frame, box, score, class_id, p_target))
     return out.getvalue()
 
 
@@ -148,6 +150,12 @@ class RecallResult:
     frame_hits: int
     other_per_frame: float
     per_video: dict[int, tuple[int, int]]
+    top_hits: int = 0
+
+    @property
+    def top_rate(self) -> float:
+        """Share of labelled frames whose most likely box (highest confidence) is the vessel."""
+        return self.top_hits / self.frames if self.frames else math.nan
 
     @property
     def box_recall(self) -> float:
@@ -169,6 +177,8 @@ class RecallResult:
             "frames": self.frames,
             "frame_hits": self.frame_hits,
             "frame_recall": self.frame_recall,
+            "top_hits": self.top_hits,
+            "top_rate": self.top_rate,
             "other_detections_per_frame": self.other_per_frame,
             "per_video": {str(v): {"boxes": n, "hits": h} for v, (n, h) in sorted(self.per_video.items())},
         }
@@ -186,18 +196,22 @@ def recall_at(
     ``horizon_y(xs) -> ys`` (a CameraModel's) decides "below the horizon" for the other detections: their
     bottom edge lies below the horizon at their centre x (all count when it is None).
     """
-    boxes = hits = frame_hits = 0
+    boxes = hits = frame_hits = top_hits = 0
     others = []
     per_video: dict[int, tuple[int, int]] = {}
     for key, hand in sorted(labels_by_frame.items()):
         det_boxes, det_scores = detections.get(key, (np.zeros((0, 4)), np.zeros(0)))
-        det_boxes = det_boxes[det_scores >= threshold]
+        above = det_scores >= threshold
+        det_boxes, det_scores = det_boxes[above], det_scores[above]
         iou = box_iou(hand, det_boxes) if len(det_boxes) else np.zeros((len(hand), 0))
         matched_hand = (iou >= hit_iou).any(axis=1)
         matched_det = (iou >= hit_iou).any(axis=0)
         boxes += len(hand)
         hits += int(matched_hand.sum())
         frame_hits += int(matched_hand.any())
+        if len(det_boxes):
+            best = int(np.argmax(det_scores))
+            top_hits += int((iou[:, best] >= hit_iou).any())
         n, h = per_video.get(key[0], (0, 0))
         per_video[key[0]] = (n + len(hand), h + int(matched_hand.sum()))
         unmatched = det_boxes[~matched_det]
@@ -209,7 +223,7 @@ def recall_at(
         others.append(len(unmatched))
     return RecallResult(
         threshold, boxes, hits, len(labels_by_frame), frame_hits,
-        float(np.mean(others)) if others else math.nan, per_video,
+        float(np.mean(others)) if others else math.nan, per_video, top_hits,
     )
 
 
@@ -246,17 +260,20 @@ def cmd_recall(args: argparse.Namespace) -> int:
         detector = build_detector(values, camera)
         source = _describe(detector)
         print(f"detecting in {len(frames)} labelled frames ({source})", file=sys.stderr)
-        detections = {(r.video, r.frame): (d.boxes_xyxy, d.scores) for r, d in detect_frames(detector, frames)}
+        detections = {(r.video, r.frame): (d.boxes_xyxy, np.where(np.isfinite(d.p_target), d.p_target, d.scores))
+                      for r, d in detect_frames(detector, frames)}
     horizon = camera.horizon_y if camera is not None else None
     thresholds = args.thresholds or [args.score if args.score is not None else default_threshold]
     results = [recall_at(labels, detections, t, horizon) for t in thresholds]
     print(f"recall of the vessel of interest, videos {args.videos}, hit = IoU >= {HIT_IOU} with a primary hand box")
     print(f"  {source}")
-    print("  score>=  boxes  recall   frames  recall   other detections/frame (below the horizon)")
+    print("  confidence is p_target (the probability of being the vessel of interest) where the detector gives it")
+    print("  conf>=   boxes  recall   frames  recall   most likely box is the vessel   other detections/frame")
     for r in results:
         print(
             f"  {r.threshold:6.2f}  {r.box_hits:3d}/{r.boxes:<3d} {100 * r.box_recall:5.1f} %  "
-            f"{r.frame_hits:3d}/{r.frames:<3d} {100 * r.frame_recall:5.1f} %  {r.other_per_frame:6.2f}"
+            f"{r.frame_hits:3d}/{r.frames:<3d} {100 * r.frame_recall:5.1f} %  "
+            f"{r.top_hits:3d}/{r.frames:<3d} {100 * r.top_rate:5.1f} %                  {r.other_per_frame:6.2f}"
         )
     first = results[0]
     print("  per video (boxes hit/labelled): " + ", ".join(
@@ -422,6 +439,14 @@ def _fit_on_labels(dataset, camera, videos):
 
 
 # ---------------------------------------------------------------------------------------------------- main
+def _repo_file(relative: str) -> str | None:
+    """A file of the repository (the shipped configuration), None when absent."""
+    from vessel_calib.dataset import repo_root
+
+    path = Path(repo_root()) / relative
+    return str(path) if path.is_file() else None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
     parser = argparse.ArgumentParser(prog="vessel detect", description=__doc__.split("\n\n")[0])
@@ -430,10 +455,13 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="detections of every frame of a dataset folder to CSV")
     run.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
     run.add_argument("--videos", help="e.g. 13-17 or 7,9 (default: all)")
-    run.add_argument("--out", required=True, help="CSV to write (video,frame,x1,y1,x2,y2,score,class_id)")
-    run.add_argument("--params", help="parameter YAML: its detector: and camera: blocks (default: the node's defaults)")
-    run.add_argument("--calib", help="calibration parameter YAML (e.g. config/aitas_camera.yaml; default: the "
-                     "params file's camera block, else the dataset's camera.json)")
+    run.add_argument("--out", required=True, help="CSV to write (video,frame,x1,y1,x2,y2,score,class_id,p_target)")
+    run.add_argument("--params", default=_repo_file("config/aitas.yaml"),
+                     help="parameter YAML: its detector: and camera: blocks (default: the shipped config/aitas.yaml; "
+                          "'' for the node's defaults)")
+    run.add_argument("--calib", default=_repo_file("config/aitas_camera.yaml"),
+                     help="calibration parameter YAML (default: the shipped config/aitas_camera.yaml; '' for the "
+                          "params file's camera block, else the dataset's camera.json)")
     run.add_argument("--no-cue", action="store_true", help="leave out the params file's appearance_model (the raw "
                      "detector output a cue is fitted on: `python -m vessel_track.appearance fit`)")
     run.add_argument("--quiet", action="store_true", help="no progress line")
@@ -443,8 +471,10 @@ def build_parser() -> argparse.ArgumentParser:
     recall.add_argument("--data")
     recall.add_argument("--videos", default="6-17")
     recall.add_argument("--detections", help="a CSV from 'run' (default: run the detector on the labelled frames)")
-    recall.add_argument("--params")
-    recall.add_argument("--calib", help="calibration parameter YAML (default as for run)")
+    recall.add_argument("--params", default=_repo_file("config/aitas.yaml"),
+                        help="parameter YAML (default as for run)")
+    recall.add_argument("--calib", default=_repo_file("config/aitas_camera.yaml"),
+                        help="calibration parameter YAML (default as for run)")
     recall.add_argument("--score", type=float, help="score threshold (default: the detector's)")
     recall.add_argument("--thresholds", type=lambda s: [float(v) for v in s.split(",")],
                         help="comma-separated score thresholds to report (a sweep)")
@@ -466,6 +496,13 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--class-id", type=int, default=0)
     export.add_argument("--class-name", default="boat")
     export.set_defaults(func=cmd_export_labels)
+
+    from vessel_detect.training.train_cli import add_parser as add_train_parser
+
+    add_train_parser(sub)
+    from vessel_detect.training.quantize import add_parser as add_quantize_parser
+
+    add_quantize_parser(sub)
     return parser
 
 

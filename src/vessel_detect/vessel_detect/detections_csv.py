@@ -1,4 +1,8 @@
-"""The detector-run CSV (``video,frame,x1,y1,x2,y2,score,class_id``): one writer and one reader for every tool.
+"""The detector-run CSV (``video,frame,x1,y1,x2,y2,score,class_id,p_target``): one writer and one reader for every tool.
+
+``p_target`` is the probability that the box is the vessel of interest (the network's target class, or the
+appearance cue); empty where neither gives one. Readers hand it on as the box's confidence where it is given,
+as the tracker node does with the detector's target hypothesis (``confidence_class``), else the score.
 
 ``./vessel detect run`` writes it, ``vessel_track.appearance score`` rewrites it with the cue's probabilities,
 and ``vessel_track.pipeline``, ``./vessel demo --detections`` and ``detect eval`` read it. Kept free of OpenCV
@@ -7,26 +11,32 @@ and onnxruntime so the ROS-free tracking tools can read it cheaply.
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 import numpy as np
 
 from vessel_calib.errors import DataError
 
-CSV_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score", "class_id")
+CSV_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score", "class_id", "p_target")
 #: COCO's "boat", the class written when a tool does not know it.
 COCO_BOAT = 8
 
 
-def csv_row(video: int, frame: int, box, score: float, class_id: int = COCO_BOAT) -> list[str]:
-    """One row: pixel coordinates to 0.1 px, the score to 4 decimals."""
+def csv_row(video: int, frame: int, box, score: float, class_id: int = COCO_BOAT,
+            p_target: float = float("nan")) -> list[str]:
+    """One row: pixel coordinates to 0.1 px, the score and ``p_target`` to 4 decimals (empty when unknown)."""
+    target = f"{float(p_target):.4f}" if math.isfinite(float(p_target)) else ""
     return [str(int(video)), str(int(frame)), *(f"{float(v):.1f}" for v in box), f"{float(score):.4f}",
-            str(int(class_id))]
+            str(int(class_id)), target]
 
 
 def read_detections_csv(path: Path, missing_hint: str = "write one with './vessel detect run'"
                         ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-    """(video, frame) -> (boxes (N, 4), scores (N,)); DataError naming the file, and the row, for bad input."""
+    """(video, frame) -> (boxes (N, 4), confidences (N,)); DataError naming the file, and the row, for bad input.
+
+    A row's confidence is its ``p_target`` where the column is filled, else its ``score``.
+    """
     path = Path(path)
     if not path.is_file():
         raise DataError(f"detections file {path} not found: {missing_hint}")
@@ -40,6 +50,9 @@ def read_detections_csv(path: Path, missing_hint: str = "write one with './vesse
             try:
                 key = (int(row["video"]), int(row["frame"]))
                 values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
+                target = (row.get("p_target") or "").strip()
+                if target:
+                    values[4] = float(target)
             except (TypeError, ValueError):
                 raise DataError(f"{path}, row {line}: video, frame, x1..y2 and score must be numbers, got "
                                 f"{row}") from None

@@ -67,6 +67,8 @@ class Detections:
         scores: ``(N,)`` confidence in [0, 1].
         class_ids: ``(N,)`` int index into ``class_names``.
         class_names: the model's class names (all of them, not only the detected ones).
+        p_target: ``(N,)`` probability that the box is the vessel of interest (the model's target class, or
+            the appearance cue), NaN where neither gives one.
 
     """
 
@@ -74,6 +76,11 @@ class Detections:
     scores: np.ndarray
     class_ids: np.ndarray
     class_names: list[str] = field(default_factory=list)
+    p_target: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.p_target is None:
+            self.p_target = np.full(np.shape(self.scores), np.nan)
 
     def __len__(self) -> int:
         return int(self.scores.shape[0])
@@ -89,7 +96,8 @@ class Detections:
 
     def take(self, indices) -> Detections:
         """The detections at ``indices`` (boolean mask or index array)."""
-        return Detections(self.boxes_xyxy[indices], self.scores[indices], self.class_ids[indices], self.class_names)
+        return Detections(self.boxes_xyxy[indices], self.scores[indices], self.class_ids[indices], self.class_names,
+                          self.p_target[indices])
 
 
 @dataclass
@@ -110,6 +118,8 @@ class DetectorConfig:
     mask_max_inside: float = 0.5
     cut_edge_tolerance_px: float = 3.0
     covered_threshold: float = 0.6
+    target_class: str = ""
+    class_agnostic_nms: bool = False
 
     def validate(self) -> None:
         """Reject values the detector cannot work with; the message names the parameter."""
@@ -390,6 +400,12 @@ class VesselDetector:
                 f"({', '.join(model.class_names[:12])}{', ...' if len(model.class_names) > 12 else ''})"
             )
         self.class_indices = np.array([model.class_names.index(n) for n in self.config.classes], dtype=np.int64)
+        if self.config.target_class and self.config.target_class not in model.class_names:
+            raise ModelError(
+                f"target_class '{self.config.target_class}' is not among the model's classes "
+                f"({', '.join(model.class_names[:12])}); set it to the model's vessel-of-interest class or ''"
+            )
+        self.target_index = model.class_names.index(self.config.target_class) if self.config.target_class else None
         self.mask = ExclusionMask(list(self.config.exclusion_polygons), self.reference_wh)
         self._plans: dict[tuple[int, int], list[tuple[Window, bool]]] = {}
         self.appearance = None  # an appearance_model.AppearanceModel rescoring the boxes (set by build_detector)
@@ -467,7 +483,7 @@ class VesselDetector:
             output = self.model.run(tensor)
             candidates = decode(
                 output, self.model.layout, self.model.input_hw, self.class_indices,
-                self.config.score_threshold, self.model.strides,
+                self.config.score_threshold, self.model.strides, self.target_index,
             )
             if len(candidates) == 0:
                 continue
@@ -478,12 +494,15 @@ class VesselDetector:
             part = WindowDetections(
                 boxes, candidates.scores, candidates.class_ids,
                 np.full(len(candidates), index, dtype=np.int64), cut_flags(boxes, window, tolerance),
+                candidates.target_scores,
             )
-            parts.append(nms_per_window(part, self.config.nms_iou))
+            parts.append(nms_per_window(part, self.config.nms_iou, self.config.class_agnostic_nms))
         merged = WindowDetections.concatenate(parts)
         if len(plan) > 1:
-            merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold)
-        detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names)
+            merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold,
+                                   class_agnostic=self.config.class_agnostic_nms)
+        detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names,
+                                merged.target_scores)
         detections = self._filter(detections, (width, height))
         if self.appearance is not None:
             from vessel_detect.appearance_model import rescore_detections

@@ -17,6 +17,7 @@ with one ``error:`` line (exit status 2).
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
@@ -48,12 +49,18 @@ EVENT_KINDS = ("frames_received", "frames_processed", "dropped_frames", "detecti
 LATENCY_WINDOW = 200
 
 
-def detections_to_msg(detections: Detections, header) -> Detection2DArray:
-    """A ``Detection2DArray`` with ``header`` for detections in full-resolution pixels."""
+def detections_to_msg(detections: Detections, header, target_class: str = "") -> Detection2DArray:
+    """A ``Detection2DArray`` with ``header`` for detections in full-resolution pixels.
+
+    Each detection's first hypothesis is its class and score; with ``target_class`` and a finite ``p_target``
+    a hypothesis of that class with the probability of being the vessel of interest follows (unless the
+    first one already is that class), as vision_msgs' list of hypotheses allows.
+    """
     array = Detection2DArray()
     array.header = header
     labels = detections.labels()
-    for box, score, label in zip(detections.boxes_xyxy, detections.scores, labels, strict=True):
+    for box, score, label, p_target in zip(detections.boxes_xyxy, detections.scores, labels, detections.p_target,
+                                           strict=True):
         detection = Detection2D()
         detection.header = header
         x1, y1, x2, y2 = (float(v) for v in box)
@@ -66,6 +73,11 @@ def detections_to_msg(detections: Detections, header) -> Detection2DArray:
         hypothesis.hypothesis.class_id = label
         hypothesis.hypothesis.score = float(score)
         detection.results = [hypothesis]
+        if target_class and label != target_class and math.isfinite(float(p_target)):
+            target = ObjectHypothesisWithPose()
+            target.hypothesis.class_id = target_class
+            target.hypothesis.score = float(p_target)
+            detection.results.append(target)
         detection.id = ""
         array.detections.append(detection)
     return array
@@ -208,7 +220,7 @@ class DetectorNode(Node):
         header = message.header
         if not header.frame_id and self.values["frame_id"]:
             header.frame_id = self.values["frame_id"]
-        self.detections_pub.publish(detections_to_msg(detections, header))
+        self.detections_pub.publish(detections_to_msg(detections, header, self.detector.config.target_class))
         finished = time.monotonic()
         self._latencies.append((finished - started) * 1000.0)
         self._end_to_end.append((finished - received) * 1000.0)

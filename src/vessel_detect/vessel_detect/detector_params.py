@@ -68,6 +68,10 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("classes", ["boat"], "Class names to detect (others are ignored).", read_only=True),
     ParamSpec("score_threshold", 0.15, "Minimum confidence (objectness x class score) of a detection; the "
               "tracker downstream handles the clutter of low values.", float_range=(0.0, 1.0)),
+    ParamSpec("target_class", "", "The model's class of the vessel of interest (e.g. vessel_of_interest): each "
+              "detection also carries its probability as a hypothesis of this class ('' : none).", read_only=True),
+    ParamSpec("class_agnostic_nms", False, "Suppress overlapping boxes whatever their class (a model whose "
+              "classes split one kind of object, such as vessel_of_interest and vessel).", read_only=True),
     ParamSpec("nms_iou", 0.55, "IoU above which the weaker of two boxes of a class is suppressed.",
               float_range=(0.01, 1.0)),
     ParamSpec("mode", "tiled", "full (whole frame), band (the band below the horizon, letterboxed whole) or "
@@ -199,6 +203,8 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
         global_pass=bool(values["global_pass"]),
         exclusion_polygons=polygons,
         mask_max_inside=float(values["mask_max_inside"]),
+        target_class=str(values["target_class"]).strip(),
+        class_agnostic_nms=bool(values["class_agnostic_nms"]),
     )
     config.validate()
     return config
@@ -254,20 +260,30 @@ def load_params_file(path: str | Path | None, node_name: str = NODE_NAME) -> tup
     The detector block is the node's (``detector:``) overlaid on ``/**``'s non-camera keys; the camera is the
     ``camera:`` block (``/**`` preferred).
     """
-    if not path:
-        return default_values(), None
+    return load_params_files([path] if path else [], node_name)
+
+
+def load_params_files(paths, node_name: str = NODE_NAME) -> tuple[dict[str, Any], Any]:
+    """As :func:`load_params_file` for several files loaded in order.
+
+    As ``--params-file A --params-file B`` would: a later file's values win, the last camera block is the calibration.
+    """
     from vessel_calib.params import camera_block, node_blocks, read_params_yaml
 
-    blocks = read_params_yaml(path)
-    overrides: dict[str, Any] = {k: v for k, v in (blocks.get("/**") or {}).items() if k in _BY_NAME}
-    for name in (node_name, f"/{node_name}"):
-        overrides.update(blocks.get(name) or {})
+    overrides: dict[str, Any] = {}
     camera = None
-    for params in node_blocks(blocks, node_name):
-        block = camera_block(params)
-        if block is not None:
-            from vessel_calib.camera_model import CameraModel
+    for path in paths:
+        if not path:
+            continue
+        blocks = read_params_yaml(path)
+        overrides.update({k: v for k, v in (blocks.get("/**") or {}).items() if k in _BY_NAME})
+        for name in (node_name, f"/{node_name}"):
+            overrides.update(blocks.get(name) or {})
+        for params in node_blocks(blocks, node_name):
+            block = camera_block(params)
+            if block is not None:
+                from vessel_calib.camera_model import CameraModel
 
-            camera = CameraModel.from_params(block, where=f"{path}: camera")
-            break
+                camera = CameraModel.from_params(block, where=f"{path}: camera")
+                break
     return merge_values(overrides), camera

@@ -198,6 +198,8 @@ def resolve_model(
     """
     if spec.path:
         path = Path(spec.path).expanduser()
+        if not path.is_absolute() and not path.is_file() and (repo_root() / path).is_file():
+            path = repo_root() / path  # a model shipped in the repository, named from its root
         if not path.is_file():
             raise ModelError(f"model file {path} (model_path) not found; {how_to_get(spec)}")
         _verify(path, spec, "model file")

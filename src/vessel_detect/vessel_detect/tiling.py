@@ -105,6 +105,11 @@ class WindowDetections:
     class_ids: np.ndarray
     window_index: np.ndarray
     cut: np.ndarray  # (N, 4) bool, see LEFT/TOP/RIGHT/BOTTOM
+    target_scores: np.ndarray | None = None  # (N,) score of the target class, NaN when the model has none
+
+    def __post_init__(self) -> None:
+        if self.target_scores is None:
+            self.target_scores = np.full(np.shape(self.scores), np.nan)
 
     @staticmethod
     def concatenate(parts: list[WindowDetections]) -> WindowDetections:
@@ -119,6 +124,7 @@ class WindowDetections:
             np.concatenate([p.class_ids for p in parts]).astype(np.int64),
             np.concatenate([p.window_index for p in parts]).astype(np.int64),
             np.concatenate([p.cut for p in parts]).reshape(-1, 4).astype(bool),
+            np.concatenate([p.target_scores for p in parts]).astype(np.float64),
         )
 
     def take(self, indices: np.ndarray) -> WindowDetections:
@@ -129,6 +135,7 @@ class WindowDetections:
             self.class_ids[indices],
             self.window_index[indices],
             self.cut[indices],
+            self.target_scores[indices],
         )
 
     def __len__(self) -> int:
@@ -182,8 +189,9 @@ def join_cut_pieces(
     if all(len(members) == 1 for members in groups.values()):
         return dets
     keep_rows = [i for i in range(len(dets)) if i not in parent]
-    boxes, scores, class_ids, window_index, cut = [], [], [], [], []
+    boxes, scores, class_ids, window_index, cut, targets = [], [], [], [], [], []
     for i in keep_rows:
+        targets.append(dets.target_scores[i])
         boxes.append(dets.boxes_xyxy[i])
         scores.append(dets.scores[i])
         class_ids.append(dets.class_ids[i])
@@ -200,6 +208,8 @@ def join_cut_pieces(
         ]
         best = members[int(np.argmax(dets.scores[members]))]
         boxes.append(union)
+        member_targets = dets.target_scores[members]
+        targets.append(np.nanmax(member_targets) if np.isfinite(member_targets).any() else np.nan)
         scores.append(dets.scores[best])
         class_ids.append(dets.class_ids[best])
         window_index.append(dets.window_index[best])
@@ -210,6 +220,7 @@ def join_cut_pieces(
         np.asarray(class_ids, dtype=np.int64),
         np.asarray(window_index, dtype=np.int64),
         np.asarray(cut, dtype=bool).reshape(-1, 4),
+        np.asarray(targets, dtype=np.float64),
     )
 
 
@@ -219,6 +230,7 @@ def merge_windows(
     iou_threshold: float,
     covered_threshold: float = 0.6,
     join_iou: float = 0.5,
+    class_agnostic: bool = False,
 ) -> WindowDetections:
     """Merge the detections of overlapping windows into one set (see the module docstring).
 
@@ -232,6 +244,8 @@ def merge_windows(
     is_cut = dets.cut.any(axis=1)
     order = np.lexsort((-dets.scores, is_cut))
     same_class = dets.class_ids[:, None] == dets.class_ids[None, :]
+    if class_agnostic:
+        same_class = np.ones_like(same_class)
     iou = np.where(same_class, box_iou(dets.boxes_xyxy, dets.boxes_xyxy), 0.0)
     covered = np.where(same_class, intersection_over_first(dets.boxes_xyxy, dets.boxes_xyxy), 0.0)
     kept: list[int] = []
@@ -245,6 +259,6 @@ def merge_windows(
     return dets.take(np.asarray(kept, dtype=np.int64))
 
 
-def nms_per_window(dets: WindowDetections, iou_threshold: float) -> WindowDetections:
-    """Class-aware NMS inside one window's detections (the usual single-image NMS)."""
-    return dets.take(nms(dets.boxes_xyxy, dets.scores, iou_threshold, dets.class_ids))
+def nms_per_window(dets: WindowDetections, iou_threshold: float, class_agnostic: bool = False) -> WindowDetections:
+    """NMS inside one window's detections (the usual single-image NMS), per class unless ``class_agnostic``."""
+    return dets.take(nms(dets.boxes_xyxy, dets.scores, iou_threshold, None if class_agnostic else dets.class_ids))

@@ -133,7 +133,7 @@ def test_detector_combines_the_probability_as_configured():
 
 @pytest.mark.data
 def test_shipped_cue_ranks_the_vessel_first_among_the_detectors_boxes(data_dir, model_path):
-    """Metric regression: config/aitas.yaml's detector with config/appearance_aitas.npz (fitted on 7-12).
+    """Metric regression: the COCO preset (config/detector_coco.yaml) with config/appearance_aitas.npz (7-12).
 
     On every 4th frame of validation videos 13-16 where the vessel's GPS projects into the image and a detection
     lies within 20 px of it, the most probable box is that detection. Measured on all such frames of 13-17:
@@ -143,9 +143,10 @@ def test_shipped_cue_ranks_the_vessel_first_among_the_detectors_boxes(data_dir, 
 
     from vessel_calib.dataset import Dataset, repo_root
     from vessel_calib.params import load_camera_yaml
-    from vessel_detect.detector_params import build_detector, load_params_file
+    from vessel_detect.detector_params import build_detector, load_params_files
 
-    values, _ = load_params_file(repo_root() / "config" / "aitas.yaml")
+    config = repo_root() / "config"
+    values, _ = load_params_files([config / "aitas.yaml", config / "detector_coco.yaml"])
     values.update(model_path=str(model_path), model_sha256="", appearance_min_probability=0.0)
     camera = load_camera_yaml(repo_root() / "config" / "aitas_camera.yaml")
     detector = build_detector(values, camera)

@@ -117,5 +117,7 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     assert settings.fusion.anchor_offset == 0.05 and settings.fusion.weights_mode == "paper"
     assert settings.distance_model.n_points == 66
     shipped = load_fuser_settings(repo / "config" / "aitas.yaml")
-    np.testing.assert_allclose(settings.cue_stats.covariance, shipped.cue_stats.covariance, rtol=1e-8)
+    # The refit runs iterative robust fits (calibration per left-out video, then the cues): it reproduces the
+    # shipped values to that iteration's precision, not to the last bits, which differ between CPUs.
+    np.testing.assert_allclose(settings.cue_stats.covariance, shipped.cue_stats.covariance, rtol=1e-4)
     assert yaml.safe_load(out.read_text())["tracker"]["ros__parameters"] == {"min_hits": 2}

@@ -176,6 +176,23 @@ def test_bad_input_gives_one_line_and_status_2(tmp_path, capsys):
         read_predictions(tmp_path / "nope.csv")
 
 
+def test_rows_that_cannot_be_scored_are_skipped_and_counted_by_reason(tmp_path):
+    path = tmp_path / "odd.csv"
+    path.write_text("video,t_utc_s,lat,lon\n"
+                    "13,70000.0,32.7,-117.2\n"
+                    "13,70001.0,32.7,-117.2,extra\n"   # one field too many
+                    "inf,70002.0,32.7,-117.2\n"
+                    "1e30,70003.0,32.7,-117.2\n"
+                    "13.5,70004.0,32.7,-117.2\n"
+                    "13,70005.0,95,-117.2\n"
+                    "13,abc,32.7,-117.2\n")
+    predictions = read_predictions(path)
+    assert len(predictions) == 1 and predictions.skipped_rows == 6
+    assert predictions.skipped_reasons == {
+        "more fields than the header": 1, "video not a whole number in 0-1000000": 3,
+        "latitude or longitude out of range": 1, "not a number": 1}
+
+
 @pytest.mark.data
 def test_gps_itself_scores_zero_on_the_shared_data(tmp_path):
     from vessel_calib.dataset import Dataset, default_data_dir

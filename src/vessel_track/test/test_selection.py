@@ -266,3 +266,21 @@ def test_a_tentative_first_guess_gives_way_at_once_to_a_likelier_track():
     selector = OnlineTargetSelector(config)
     assert selector.update(0.0, [_wt("A", [340, 50], conf=0.93), _wt("B", [290, -48], conf=0.9)]) == "A"
     assert selector.update(4.0, [_wt("A", [340, 50], conf=0.7), _wt("B", [290, -48], conf=0.99)]) == "A"
+
+
+def test_a_boat_the_detector_calls_unlikely_is_never_the_target_with_positive_evidence_only():
+    unlikely = np.full(10, 0.05)
+    other = Trajectory("B", np.arange(10) * 4.0, np.column_stack([np.arange(10) * 20.0, np.zeros(10)]), unlikely)
+    config = SelectionConfig(confidence_score="evidence", path_log_floor=1.0)
+    assert select_target([other], config)[0] is other  # the best there is, however unlikely
+    strict = SelectionConfig(confidence_score="evidence", path_log_floor=1.0, positive_evidence_only=True)
+    assert select_target([other], strict)[0] is None
+    selector = OnlineTargetSelector(strict)
+    published = [selector.update(4.0 * k, [_wt("B", [20.0 * k, 0], conf=0.05)]) for k in range(6)]
+    assert published == [None] * 6
+    # The vessel (likely) becomes the target; when its evidence turns negative it is dropped.
+    selector = OnlineTargetSelector(strict)
+    assert [selector.update(4.0 * k, [_wt("A", [10.0 * k, 0], conf=0.9)]) for k in range(3)][-1] == "A"
+    for k in range(3, 12):
+        last = selector.update(4.0 * k, [_wt("A", [10.0 * k, 0], conf=0.02)])
+    assert last is None

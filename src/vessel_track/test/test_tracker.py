@@ -405,3 +405,18 @@ def test_min_hits_one_confirms_at_once():
     tracker = MultiTargetTracker(TrackerConfig(min_hits=1))
     (s,) = tracker.update(T0, [box(100, 500)], [0.9])
     assert s.status == TrackStatus.CONFIRMED
+
+
+def test_tracks_carry_the_class_of_their_latest_detection():
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+
+    tracker = MultiTargetTracker(TrackerConfig(min_hits=1))
+    first = tracker.update(0.0, [[100, 100, 140, 120], [400, 100, 440, 120]], [0.9, 0.2],
+                           ["vessel_of_interest", "vessel"])
+    assert sorted(s.label for s in first) == ["vessel", "vessel_of_interest"]
+    again = tracker.update(1.0, [[101, 100, 141, 120]], [0.4], ["vessel"])
+    by_id = {s.track_id: s.label for s in again}
+    assert sorted(by_id.values()) == ["vessel", "vessel"]
+    assert [s.label for s in tracker.update(2.0, [[0, 0, 0, 0]], [0.5], ["x"])] == ["vessel", "vessel"]
+    with pytest.raises(DataError, match="labels"):
+        tracker.update(3.0, [[1, 1, 5, 5]], [0.5], ["a", "b"])

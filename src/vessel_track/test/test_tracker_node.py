@@ -175,3 +175,21 @@ def test_every_tracker_config_field_is_a_described_parameter():
 
     assert set(TRACKER_PARAMETERS) == {f.name for f in fields(TrackerConfig)}
     assert all(description.strip() for description, _ in TRACKER_PARAMETERS.values())
+
+
+def test_every_vessel_is_tracked_and_its_confidence_is_the_target_hypothesis():
+    from vessel_detect.detector import Detections
+    from vessel_detect.detector_node import detections_to_msg
+    from vessel_track.tracker_node import detections_to_arrays
+
+    detections = Detections(np.array([[10.0, 20, 50, 40], [100.0, 20, 140, 40]]), np.array([0.9, 0.8]),
+                            np.array([0, 1]), ["vessel_of_interest", "vessel"], np.array([0.9, 0.05]))
+    msg = detections_to_msg(detections, detection_array(5.0, [], []).header, "vessel_of_interest")
+    assert [[r.hypothesis.class_id for r in d.results] for d in msg.detections] == [
+        ["vessel_of_interest"], ["vessel", "vessel_of_interest"]]
+    boxes, scores = detections_to_arrays(msg, None, "vessel_of_interest")
+    assert len(boxes) == 2 and scores.tolist() == pytest.approx([0.9, 0.05])
+    _, best = detections_to_arrays(msg, None)
+    assert best.tolist() == pytest.approx([0.9, 0.8])
+    _, only_vessels = detections_to_arrays(msg, frozenset({"vessel"}), "vessel_of_interest")
+    assert only_vessels.tolist() == pytest.approx([0.05])

@@ -55,6 +55,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "from the dataset's training labels (videos 7-12), else from the shared set's, else "
                         "config/aitas_camera.yaml")
     parser.add_argument("--params", type=Path, default=None, help="graph parameter file (default config/aitas.yaml)")
+    parser.add_argument("--detector-params", type=Path, default=None, help="a parameter file laid over --params, "
+                        "e.g. config/detector_trained.yaml: the detector trained on the challenge camera")
     parser.add_argument("--detections", default="detector", metavar="detector|labels|FILE.csv",
                         help="detector: run the ONNX detector node; labels: feed the hand-labelled boxes; "
                              "FILE.csv: replay a saved detector run (`./vessel detect run --out FILE.csv`, columns "
@@ -71,6 +73,32 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 # --------------------------------------------------------------------------------------------------------------
 # Inputs: calibration, bags, label detections
 # --------------------------------------------------------------------------------------------------------------
+def merged_params_file(base: Path, overlay: Path, out: Path) -> Path:
+    """``overlay``'s parameters over ``base``'s, node by node, written to ``out``.
+
+    One file for the nodes and the offline pass alike, as ``--params-file base --params-file overlay`` would give.
+    """
+    import yaml
+
+    from vessel_calib.params import atomic_write_text
+
+    if not Path(overlay).is_file():
+        raise VesselError(f"--detector-params {overlay} not found (e.g. config/detector_trained.yaml)")
+
+    def merge(into: dict, extra: dict) -> dict:
+        for key, value in extra.items():
+            into[key] = merge(dict(into.get(key) or {}), value) if isinstance(value, dict) else value
+        return into
+
+    try:
+        merged = merge(yaml.safe_load(Path(base).read_text()) or {}, yaml.safe_load(Path(overlay).read_text()) or {})
+    except yaml.YAMLError as error:
+        raise VesselError(f"cannot read {base} or {overlay} as YAML: {error}") from None
+    atomic_write_text(out, f"# {overlay} over {base}, written by ./vessel demo --detector-params\n"
+                      + yaml.safe_dump(merged, sort_keys=False))
+    return out
+
+
 def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_level_file: str = "") -> Path:
     """The calibration file the graph loads: given, fitted from training labels, or the shipped one.
 
@@ -452,6 +480,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = args.out or repo_root() / "out" / "demo"
         out.mkdir(parents=True, exist_ok=True)
         params_file = args.params or default_params_file()
+        if args.detector_params is not None:
+            params_file = merged_params_file(params_file, args.detector_params, out / "params.yaml")
+            log(f"parameters: {args.detector_params} over {args.params or default_params_file()} -> {params_file}")
         from vessel_track.fuser_settings import load_fuser_settings
 
         water_level = load_fuser_settings(params_file).water_level

@@ -31,7 +31,7 @@ import math
 import os
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -54,19 +54,42 @@ class Predictions:
     lat: np.ndarray
     lon: np.ndarray
     skipped_rows: int = 0
+    skipped_reasons: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.video.size)
 
 
+MAX_VIDEO_NUMBER = 1_000_000
+
+
+def _prediction_row(row: dict) -> tuple[tuple[int, float, float, float] | None, str]:
+    """One row's values, or None and why it is skipped."""
+    if None in row:
+        return None, "more fields than the header"
+    values = {(k or "").strip(): (v or "").strip() if isinstance(v, str) else "" for k, v in row.items()}
+    try:
+        video_value = float(values["video"])
+        t, lat, lon = float(values["t_utc_s"]), float(values["lat"]), float(values["lon"])
+    except (ValueError, KeyError):
+        return None, "not a number"
+    if not math.isfinite(video_value) or video_value != int(video_value) or not 0 <= video_value <= MAX_VIDEO_NUMBER:
+        return None, f"video not a whole number in 0-{MAX_VIDEO_NUMBER}"
+    if not (math.isfinite(t) and math.isfinite(lat) and math.isfinite(lon)):
+        return None, "time or position not finite"
+    if abs(lat) > 90 or abs(lon) > 180:
+        return None, "latitude or longitude out of range"
+    return (int(video_value), t, lat, lon), ""
+
+
 def read_predictions(path: Path) -> Predictions:
-    """Read ``video,t_utc_s,lat,lon``; rows with missing/NaN/out-of-range values are skipped and counted."""
+    """Read ``video,t_utc_s,lat,lon``; rows that cannot be scored are skipped and counted by reason."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such predictions file; write one with `./vessel demo` or "
                         f"`python -m vessel_track.pipeline ... --out DIR`")
     videos, times, lats, lons = [], [], [], []
-    skipped = 0
+    reasons: dict[str, int] = {}
     try:
         with path.open(newline="") as handle:
             reader = csv.DictReader(handle)
@@ -76,29 +99,21 @@ def read_predictions(path: Path) -> Predictions:
                 raise DataError(f"{path}: missing column(s) {', '.join(missing)}; expected the header "
                                 f"{','.join(PREDICTION_COLUMNS)}")
             for row in reader:
-                row = {(k or "").strip(): (v or "").strip() for k, v in row.items()}
-                try:
-                    video = int(float(row["video"]))
-                    t = float(row["t_utc_s"])
-                    lat = float(row["lat"])
-                    lon = float(row["lon"])
-                except (ValueError, KeyError):
-                    skipped += 1
+                values, reason = _prediction_row(row)
+                if values is None:
+                    reasons[reason] = reasons.get(reason, 0) + 1
                     continue
-                if not (math.isfinite(t) and math.isfinite(lat) and math.isfinite(lon)) or abs(lat) > 90 \
-                        or abs(lon) > 180:
-                    skipped += 1
-                    continue
-                videos.append(video)
-                times.append(t)
-                lats.append(lat)
-                lons.append(lon)
+                videos.append(values[0])
+                times.append(values[1])
+                lats.append(values[2])
+                lons.append(values[3])
     except (OSError, UnicodeDecodeError, csv.Error) as error:
         raise DataError(f"{path}: cannot read predictions ({error})") from None
-    v = np.asarray(videos, dtype=int)
+    v = np.asarray(videos, dtype=np.int64)
     t = np.asarray(times, dtype=float)
     order = np.lexsort((t, v))
-    return Predictions(v[order], t[order], np.asarray(lats)[order], np.asarray(lons)[order], skipped)
+    return Predictions(v[order], t[order], np.asarray(lats, dtype=float)[order], np.asarray(lons, dtype=float)[order],
+                       sum(reasons.values()), reasons)
 
 
 def metrics(error_m, distance_m, predicted_distance_m=None) -> dict:
@@ -502,7 +517,7 @@ def evaluate(predictions_path: Path, data_dir: Path | None = None, videos: list[
         raise DataError(f"{predictions_path}: no predictions and no --videos given: nothing to score")
     keep = np.isin(predictions.video, videos)
     predictions = Predictions(predictions.video[keep], predictions.t_utc_s[keep], predictions.lat[keep],
-                              predictions.lon[keep], predictions.skipped_rows)
+                              predictions.lon[keep], predictions.skipped_rows, predictions.skipped_reasons)
     camera, camera_source = load_camera(calib, dataset)
     scored = score_predictions(predictions, dataset, gps_track, max_gps_gap_s)
     in_view = coverage_frames(dataset, camera, gps_track, videos, frames, max_gps_gap_s)
@@ -510,7 +525,8 @@ def evaluate(predictions_path: Path, data_dir: Path | None = None, videos: list[
     summary = summarize(scored, cover, videos)
     summary["settings"] = {"predictions": str(predictions_path), "data": str(dataset.path), "videos": videos,
                            "camera": camera_source, "coverage_frames": frames, "max_gps_gap_s": max_gps_gap_s,
-                           "match_tolerance_s": match_tolerance_s, "skipped_rows": predictions.skipped_rows}
+                           "match_tolerance_s": match_tolerance_s, "skipped_rows": predictions.skipped_rows,
+                           "skipped_reasons": predictions.skipped_reasons}
     if out is not None:
         out = Path(out)
         if out.suffix.lower() == ".json":
@@ -554,6 +570,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     print(format_table(summary))
+    reasons = summary["settings"].get("skipped_reasons") or {}
+    if reasons:
+        print(f"skipped {sum(reasons.values())} row(s) of {args.predictions}: "
+              + "; ".join(f"{count} {reason}" for reason, count in sorted(reasons.items())))
     if args.out is not None:
         print(f"written: {args.out}")
     return 0

@@ -87,6 +87,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.evidence_clip": ("Bound of one confidence's log-odds in the evidence score.", (1e-3, 100.0)),
     "selection.reacquire_window_s": ("For this long after the target's track ended, another track needs "
                                      "reacquire_fraction of its score to take over, s.", (0.0, 1e9)),
+    "selection.positive_evidence_only": ("With the evidence score, only a track whose evidence is positive (more "
+                                         "likely the vessel of interest than not) may be the target.", None),
     "selection.path_log_floor": ("Lower bound of the path factor log(max(l, 1)) (paper 0: tracks that have not "
                                  "moved yet all score 0; 1 lets their confidences rank them).", (0.0, 100.0)),
     "offline.outlier_threshold_px": ("Offline smoothing: screen-y outlier threshold, px (paper 5).", (1e-3, 1e4)),

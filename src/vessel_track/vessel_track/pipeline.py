@@ -344,6 +344,9 @@ def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config
     if not trajectories:
         return
     target, _ = select_target(trajectories, s.selection)
+    if target is None:  # no trajectory may be the vessel of interest (selection.positive_evidence_only)
+        result.target_members = []
+        return
     result.target_members = list(target.members)
     stamps, z, R, screen = [], [], [], []
     for member in target.members:

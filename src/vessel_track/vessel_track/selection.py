@@ -73,6 +73,10 @@ class SelectionConfig:
         looks like the vessel and drains with every frame that does not, so a track that swapped onto the
         vessel for a few frames does not overtake the one that has followed it all along.
     evidence_clip: bound of one confidence's log-odds in the ``evidence`` score.
+    positive_evidence_only: with the ``evidence`` score, a track becomes (or stays) the target only while its
+        evidence is positive: its detections say it is more likely the vessel of interest than not. For a
+        detector that tracks every vessel and gives each its probability of being the target, where a track of
+        another boat scores below zero and must never be published as the vessel, however it ranks.
     path_log_floor: the path factor is ``max(log(max(l, 1)), path_log_floor)``. The paper's 0 makes every track
         without significant motion yet score 0, so among them the first one established stays the target
         however unlike the vessel it looks; 1 (a path of e metres) lets the confidences rank them while any
@@ -98,6 +102,11 @@ class SelectionConfig:
     confidence_score: str = "percentile"
     evidence_clip: float = 4.0
     path_log_floor: float = 0.0
+    positive_evidence_only: bool = False
+
+    def eligible_score(self, score: float) -> bool:
+        """Whether a trajectory of this score may be the vessel of interest (``positive_evidence_only``)."""
+        return not (self.positive_evidence_only and self.confidence_score == "evidence" and not score > 0)
 
     def __post_init__(self) -> None:
         """Validate the fields."""
@@ -361,7 +370,8 @@ def select_target(trajectories: list[Trajectory], config: SelectionConfig | None
     config = config or SelectionConfig()
     candidates = join_trajectories(trajectories, config) if join else list(trajectories)
     scored = sorted(((c, c.score(config)) for c in candidates), key=lambda cs: -cs[1])
-    return (scored[0][0] if scored else None), scored
+    best = scored[0] if scored and config.eligible_score(scored[0][1]) else None
+    return (best[0] if best else None), scored
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -611,6 +621,9 @@ class OnlineTargetSelector:
             scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible}
         elif self.target in self._running and not self._running[self.target].established:
             self.target = None
+        scores = {tid: s for tid, s in scores.items() if cfg.eligible_score(s)}
+        if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg)):
+            self.target = None  # its evidence turned: another boat, not the vessel of interest
         if not scores:
             self._challenger = None
             return self.target if self.target in self._running else None

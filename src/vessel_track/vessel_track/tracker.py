@@ -294,6 +294,8 @@ class TrackState:
     last_seen: float
     """Stamp of the latest associated detection."""
     detection_count: int
+    label: str = ""
+    """Class of the latest associated detection ('' when the detector gave none)."""
 
     @property
     def updated(self) -> bool:
@@ -332,6 +334,7 @@ class _Track:
     last_seen: float
     size: np.ndarray
     confidence: float
+    label: str = ""
     hits: int = 1
     misses: int = 0
     ever_confirmed: bool = False
@@ -467,14 +470,16 @@ class MultiTargetTracker:
         return TrackHistory(np.array(stamps), np.array(centers), np.array(sizes), np.array(confs),
                             np.array(filtered))
 
-    def update(self, stamp_s: float, boxes_xyxy, scores=None) -> list[TrackState]:
+    def update(self, stamp_s: float, boxes_xyxy, scores=None, labels=None) -> list[TrackState]:
         """Advance every track to ``stamp_s`` and associate this frame's boxes.
 
         ``boxes_xyxy``: (N, 4) x1, y1, x2, y2 in full-resolution px (N may be 0); ``scores``: (N,) detector
-        confidences (None: all 1). Raises DataError for a non-finite stamp or arrays of the wrong shape.
+        confidences (None: all 1); ``labels``: (N,) class names carried to the tracks (None: none). Raises
+        DataError for a non-finite stamp or arrays of the wrong shape.
         """
         stamp = self._check_stamp(stamp_s)
         boxes, confs = self._check_arrays(boxes_xyxy, scores)
+        names = self._check_labels(labels, len(boxes))
         cfg = self.config
         reported: list[TrackState] = []
         self._ended = {}
@@ -505,7 +510,8 @@ class MultiTargetTracker:
         for track in self._tracks:
             self._predict(track, stamp)
 
-        boxes, confs = self._filter_detections(boxes, confs)
+        boxes, confs, kept = self._filter_detections(boxes, confs)
+        names = [names[i] for i in kept]
         centers = (boxes[:, :2] + boxes[:, 2:]) / 2.0
         sizes = boxes[:, 2:] - boxes[:, :2]
 
@@ -526,10 +532,11 @@ class MultiTargetTracker:
         measured: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for ti, di in matches.items():
             self._correct(self._tracks[ti], stamp, centers[di], sizes[di], float(confs[di]))
+            self._tracks[ti].label = names[di]
             measured[ti] = (centers[di].copy(), sizes[di].copy())
         self.counters.detections_associated += len(matches)
 
-        new_tracks = self._spawn(stamp, boxes, centers, sizes, confs, free_dets, list(matches.values()))
+        new_tracks = self._spawn(stamp, boxes, centers, sizes, confs, free_dets, list(matches.values()), names)
 
         for ti, track in enumerate(self._tracks):
             if ti not in measured:
@@ -569,11 +576,20 @@ class MultiTargetTracker:
                                 "give one score per box")
         return boxes, confs
 
-    def _filter_detections(self, boxes: np.ndarray, confs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    @staticmethod
+    def _check_labels(labels, count: int) -> list[str]:
+        if labels is None:
+            return [""] * count
+        names = [str(v) for v in labels]
+        if len(names) != count:
+            raise DataError(f"tracker: {len(names)} labels for {count} boxes; give one label per box")
+        return names
+
+    def _filter_detections(self, boxes: np.ndarray, confs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         cfg = self.config
         self.counters.detections_in += len(boxes)
         if len(boxes) == 0:
-            return boxes, confs
+            return boxes, confs, np.zeros(0, dtype=np.int64)
         finite = np.isfinite(boxes).all(axis=1) & np.isfinite(confs)
         with np.errstate(invalid="ignore"):
             big_enough = ((boxes[:, 2] - boxes[:, 0]) >= cfg.min_box_size_px) & (
@@ -582,7 +598,7 @@ class MultiTargetTracker:
         self.counters.detections_invalid += int((~valid).sum())
         scored = valid & (confs >= cfg.min_score)
         self.counters.detections_low_score += int((valid & ~scored).sum())
-        return boxes[scored], confs[scored]
+        return boxes[scored], confs[scored], np.flatnonzero(scored)
 
     # ------------------------------------------------------------------ filter
 
@@ -691,7 +707,8 @@ class MultiTargetTracker:
     # ------------------------------------------------------------------ life cycle
 
     def _spawn(self, stamp: float, boxes: np.ndarray, centers: np.ndarray, sizes: np.ndarray,
-               confs: np.ndarray, free_dets: list[int], used_dets: list[int]) -> list[_Track]:
+               confs: np.ndarray, free_dets: list[int], used_dets: list[int],
+               names: list[str] | None = None) -> list[_Track]:
         cfg = self.config
         created: list[_Track] = []
         if not free_dets:
@@ -713,7 +730,8 @@ class MultiTargetTracker:
             track = _Track(track_id=f"{cfg.id_prefix}{self._next_id}",
                            kf=self._new_filter(centers[di], sizes[di]), stamp=stamp, first_seen=stamp,
                            last_seen=stamp, size=sizes[di].copy(),
-                           confidence=float(confs[di]), history=deque(maxlen=cfg.history_length))
+                           confidence=float(confs[di]), label=names[di] if names else "",
+                           history=deque(maxlen=cfg.history_length))
             self._next_id += 1
             self.counters.tracks_created += 1
             if cfg.min_hits <= 1:
@@ -742,4 +760,4 @@ class MultiTargetTracker:
                           velocity=track.velocity, center_cov=track.center_cov, size=track.size.copy(),
                           measured_center=measured_center, measured_size=measured_size,
                           confidence=track.confidence, first_seen=track.first_seen, last_seen=track.last_seen,
-                          detection_count=track.hits)
+                          detection_count=track.hits, label=track.label)

@@ -115,18 +115,27 @@ def declare_tracker_config(node: Node) -> TrackerConfig:
     return TrackerConfig.from_dict(values)
 
 
-def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None) -> tuple[np.ndarray, np.ndarray]:
+def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
+                         confidence_class: str = "", with_labels: bool = False):
     """(N, 4) xyxy boxes and (N,) scores of the detections whose class is accepted.
 
     The score of a detection is its best hypothesis among the accepted classes; a detection without
-    hypotheses has score 1 and is accepted only when no class filter is set.
+    hypotheses has score 1 and is accepted only when no class filter is set. With ``confidence_class`` (the
+    detector's vessel-of-interest class), an accepted detection's score is that hypothesis' score wherever it
+    has one: every vessel is tracked, and each track's confidence is its probability of being the target.
+    ``with_labels`` also returns each kept detection's class (its first accepted hypothesis, '' without one).
     """
     boxes = []
     scores = []
+    labels = []
     for det in msg.detections:
         accepted = [float(r.hypothesis.score) for r in det.results
                     if classes is None or r.hypothesis.class_id in classes]
-        if accepted:
+        target = [float(r.hypothesis.score) for r in det.results
+                  if confidence_class and r.hypothesis.class_id == confidence_class]
+        if accepted and target:
+            score = target[0] if math.isfinite(target[0]) else math.nan
+        elif accepted:
             score = max(accepted) if all(math.isfinite(s) for s in accepted) else math.nan  # NaN: counted invalid
         elif not det.results and classes is None:
             score = 1.0
@@ -136,7 +145,10 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None) 
         w, h = det.bbox.size_x, det.bbox.size_y
         boxes.append((cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0))
         scores.append(score)
-    return np.array(boxes, dtype=float).reshape(-1, 4), np.array(scores, dtype=float)
+        labels.append(next((r.hypothesis.class_id for r in det.results
+                            if classes is None or r.hypothesis.class_id in classes), ""))
+    arrays = np.array(boxes, dtype=float).reshape(-1, 4), np.array(scores, dtype=float)
+    return (*arrays, labels) if with_labels else arrays
 
 
 def track_to_msg(state: TrackState, header) -> VesselTrack:
@@ -147,6 +159,7 @@ def track_to_msg(state: TrackState, header) -> VesselTrack:
     msg.is_target = False
     msg.score = math.nan
     msg.confidence = float(state.confidence)
+    msg.class_id = state.label
     msg.status = int(state.status)
     msg.detection_count = int(state.detection_count)
     msg.first_seen = sec_to_stamp(state.first_seen)
@@ -190,6 +203,9 @@ class TrackerNode(Node):
                                     "Class ids (hypothesis.class_id) to track, e.g. ['boat']; unset: every class "
                                     "the detector publishes.")
         self.classes = frozenset(classes) if classes else None
+        self.confidence_class = declare_parameter(
+            self, "confidence_class", "", "Hypothesis class_id whose score is a track's confidence when a detection "
+            "has it (the detector's target_class, e.g. vessel_of_interest); '' : the best accepted hypothesis.")
         self.tracker = MultiTargetTracker(config)
         self.health = NodeHealth(self)
         self._reported = TrackerCounters()
@@ -207,10 +223,10 @@ class TrackerNode(Node):
         stamp = stamp_to_sec(msg.header.stamp)
         if stamp == 0.0:
             self.health.problem("zero_stamp", "a detection array has a zero header stamp: set the image stamp")
-        boxes, scores = detections_to_arrays(msg, self.classes)
+        boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
         dropped_before = self.tracker.counters.out_of_order_frames
         try:
-            states = self.tracker.update(stamp, boxes, scores)
+            states = self.tracker.update(stamp, boxes, scores, labels)
         except VesselError as error:
             self.health.problem("bad_message", f"detection array dropped: {error}")
             return
