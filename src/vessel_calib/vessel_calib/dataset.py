@@ -45,6 +45,23 @@ def repo_root() -> Path:
     return cwd
 
 
+def in_repo(path) -> Path:
+    """``path``, or for a relative path not found from the working folder, the repository's file of that name.
+
+    The shipped configuration names its files (models, tide tables, cues) relative to the repository root.
+    """
+    candidate = Path(str(path)).expanduser()
+    if candidate.is_absolute() or candidate.is_file():
+        return candidate
+    return repo_root() / candidate
+
+
+def repo_file(relative: str) -> str | None:
+    """The repository's file ``relative`` (e.g. ``config/aitas.yaml``) as a string, None when it is absent."""
+    path = repo_root() / relative
+    return str(path) if path.is_file() else None
+
+
 def default_data_dir() -> Path | None:
     """``$VESSEL_DATA`` if set, else ``<repo>/../shared/aitas``; None when that folder does not exist."""
     env = os.environ.get("VESSEL_DATA")

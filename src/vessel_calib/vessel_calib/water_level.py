@@ -143,10 +143,7 @@ def load_water_level(path) -> WaterLevelTable | None:
     """The table of a ``water_level.file`` parameter; None for an empty path (no correction)."""
     if path is None or not str(path).strip():
         return None
-    candidate = Path(str(path)).expanduser()
-    if not candidate.is_absolute() and not candidate.is_file():
-        from vessel_calib.dataset import repo_root
+    from vessel_calib.dataset import in_repo
 
-        candidate = repo_root() / candidate
-    return WaterLevelTable.from_csv(candidate)
+    return WaterLevelTable.from_csv(in_repo(path))
 

@@ -31,6 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError, VesselError
 from vessel_detect.detector_params import build_detector, load_params_files, open_model
 
@@ -296,24 +297,17 @@ def compare_with_baseline(values, camera, model, baseline_files: list[str], jpeg
             "default_runs_per_frame": runs["default"], "baseline_runs_per_frame": runs["baseline"]}
 
 
-def _repo_file(relative: str) -> str | None:
-    from vessel_calib.dataset import repo_root
-
-    path = Path(repo_root()) / relative
-    return str(path) if path.is_file() else None
-
-
 def build_parser() -> argparse.ArgumentParser:
     """Command-line interface."""
     parser = argparse.ArgumentParser(prog="vessel bench detector", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
-    parser.add_argument("--params", default=_repo_file("config/aitas.yaml"),
+    parser.add_argument("--params", default=repo_file("config/aitas.yaml"),
                         help="parameter YAML of the default (detector: block; default config/aitas.yaml)")
-    parser.add_argument("--calib", default=_repo_file("config/aitas_camera.yaml"),
+    parser.add_argument("--calib", default=repo_file("config/aitas_camera.yaml"),
                         help="calibration YAML (default config/aitas_camera.yaml)")
     parser.add_argument("--detector-params", default=None,
                         help="loaded on top of --params and --calib for the default, e.g. config/detector_trained.yaml")
-    parser.add_argument("--baseline-params", default=_repo_file("config/detector_coco.yaml"),
+    parser.add_argument("--baseline-params", default=repo_file("config/detector_coco.yaml"),
                         help="loaded on top of --params for the baseline (default config/detector_coco.yaml; '' "
                              "for none)")
     parser.add_argument("--frames", type=int, default=30, help="frames for the per-mode timings")

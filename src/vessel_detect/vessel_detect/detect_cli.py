@@ -28,13 +28,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError, VesselError
-from vessel_detect.box_ops import box_iou
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 from vessel_detect.detector import Detections, VesselDetector
 from vessel_detect.detector_params import build_detector, load_params_file
+from vessel_detect.recall import HIT_IOU, RecallResult, recall_at  # noqa: F401 - the recall command's core
 
-HIT_IOU = 0.3
 # Box size of a vessel from |z_p| (full-resolution pixels): size = a / |z_p| + b.
 PAPER_BOX = ((3000.0, 50.0), (1700.0, 50.0))  # the paper's half-resolution formula, doubled
 FITTED_BOX = ((2070.0, 16.0), (1328.0, 3.0))  # least squares on the hand boxes of videos 7-12 (gps_ok)
@@ -139,94 +139,6 @@ def _describe(detector: VesselDetector) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------- recall
-@dataclass
-class RecallResult:
-    """Recall figures at one score threshold."""
-
-    threshold: float
-    boxes: int
-    box_hits: int
-    frames: int
-    frame_hits: int
-    other_per_frame: float
-    per_video: dict[int, tuple[int, int]]
-    top_hits: int = 0
-
-    @property
-    def top_rate(self) -> float:
-        """Share of labelled frames whose most likely box (highest confidence) is the vessel."""
-        return self.top_hits / self.frames if self.frames else math.nan
-
-    @property
-    def box_recall(self) -> float:
-        """Share of primary hand boxes matched by a detection."""
-        return self.box_hits / self.boxes if self.boxes else math.nan
-
-    @property
-    def frame_recall(self) -> float:
-        """Share of labelled frames where some primary box was matched."""
-        return self.frame_hits / self.frames if self.frames else math.nan
-
-    def as_dict(self) -> dict:
-        """JSON-friendly form."""
-        return {
-            "score_threshold": self.threshold,
-            "boxes": self.boxes,
-            "box_hits": self.box_hits,
-            "box_recall": self.box_recall,
-            "frames": self.frames,
-            "frame_hits": self.frame_hits,
-            "frame_recall": self.frame_recall,
-            "top_hits": self.top_hits,
-            "top_rate": self.top_rate,
-            "other_detections_per_frame": self.other_per_frame,
-            "per_video": {str(v): {"boxes": n, "hits": h} for v, (n, h) in sorted(self.per_video.items())},
-        }
-
-
-def recall_at(
-    labels_by_frame: dict[tuple[int, int], np.ndarray],
-    detections: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-    threshold: float,
-    horizon_y=None,
-    hit_iou: float = HIT_IOU,
-) -> RecallResult:
-    """Recall of the hand boxes and other detections below the horizon per labelled frame.
-
-    ``horizon_y(xs) -> ys`` (a CameraModel's) decides "below the horizon" for the other detections: their
-    bottom edge lies below the horizon at their centre x (all count when it is None).
-    """
-    boxes = hits = frame_hits = top_hits = 0
-    others = []
-    per_video: dict[int, tuple[int, int]] = {}
-    for key, hand in sorted(labels_by_frame.items()):
-        det_boxes, det_scores = detections.get(key, (np.zeros((0, 4)), np.zeros(0)))
-        above = det_scores >= threshold
-        det_boxes, det_scores = det_boxes[above], det_scores[above]
-        iou = box_iou(hand, det_boxes) if len(det_boxes) else np.zeros((len(hand), 0))
-        matched_hand = (iou >= hit_iou).any(axis=1)
-        matched_det = (iou >= hit_iou).any(axis=0)
-        boxes += len(hand)
-        hits += int(matched_hand.sum())
-        frame_hits += int(matched_hand.any())
-        if len(det_boxes):
-            best = int(np.argmax(det_scores))
-            top_hits += int((iou[:, best] >= hit_iou).any())
-        n, h = per_video.get(key[0], (0, 0))
-        per_video[key[0]] = (n + len(hand), h + int(matched_hand.sum()))
-        unmatched = det_boxes[~matched_det]
-        if horizon_y is not None and len(unmatched):
-            with np.errstate(invalid="ignore"):
-                line = np.asarray(horizon_y((unmatched[:, 0] + unmatched[:, 2]) / 2.0), dtype=float)
-            line = np.where(np.isfinite(line), line, np.nanmin(line) if np.isfinite(line).any() else -np.inf)
-            unmatched = unmatched[unmatched[:, 3] > line]
-        others.append(len(unmatched))
-    return RecallResult(
-        threshold, boxes, hits, len(labels_by_frame), frame_hits,
-        float(np.mean(others)) if others else math.nan, per_video, top_hits,
-    )
-
-
 def labelled_frames(dataset, videos) -> tuple[list, dict[tuple[int, int], np.ndarray]]:
     """Frames with hand labels (and an image) and their primary boxes."""
     frames = {(r.video, r.frame): r for r in dataset.frames(videos)}
@@ -260,7 +172,7 @@ def cmd_recall(args: argparse.Namespace) -> int:
         detector = build_detector(values, camera)
         source = _describe(detector)
         print(f"detecting in {len(frames)} labelled frames ({source})", file=sys.stderr)
-        detections = {(r.video, r.frame): (d.boxes_xyxy, np.where(np.isfinite(d.p_target), d.p_target, d.scores))
+        detections = {(r.video, r.frame): (d.boxes_xyxy, d.target_confidences())
                       for r, d in detect_frames(detector, frames)}
     horizon = camera.horizon_y if camera is not None else None
     thresholds = args.thresholds or [args.score if args.score is not None else default_threshold]
@@ -439,14 +351,6 @@ def _fit_on_labels(dataset, camera, videos):
 
 
 # ---------------------------------------------------------------------------------------------------- main
-def _repo_file(relative: str) -> str | None:
-    """A file of the repository (the shipped configuration), None when absent."""
-    from vessel_calib.dataset import repo_root
-
-    path = Path(repo_root()) / relative
-    return str(path) if path.is_file() else None
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
     parser = argparse.ArgumentParser(prog="vessel detect", description=__doc__.split("\n\n")[0])
@@ -456,10 +360,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
     run.add_argument("--videos", help="e.g. 13-17 or 7,9 (default: all)")
     run.add_argument("--out", required=True, help="CSV to write (video,frame,x1,y1,x2,y2,score,class_id,p_target)")
-    run.add_argument("--params", default=_repo_file("config/aitas.yaml"),
+    run.add_argument("--params", default=repo_file("config/aitas.yaml"),
                      help="parameter YAML: its detector: and camera: blocks (default: the shipped config/aitas.yaml; "
                           "'' for the node's defaults)")
-    run.add_argument("--calib", default=_repo_file("config/aitas_camera.yaml"),
+    run.add_argument("--calib", default=repo_file("config/aitas_camera.yaml"),
                      help="calibration parameter YAML (default: the shipped config/aitas_camera.yaml; '' for the "
                           "params file's camera block, else the dataset's camera.json)")
     run.add_argument("--no-cue", action="store_true", help="leave out the params file's appearance_model (the raw "
@@ -471,9 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
     recall.add_argument("--data")
     recall.add_argument("--videos", default="6-17")
     recall.add_argument("--detections", help="a CSV from 'run' (default: run the detector on the labelled frames)")
-    recall.add_argument("--params", default=_repo_file("config/aitas.yaml"),
+    recall.add_argument("--params", default=repo_file("config/aitas.yaml"),
                         help="parameter YAML (default as for run)")
-    recall.add_argument("--calib", default=_repo_file("config/aitas_camera.yaml"),
+    recall.add_argument("--calib", default=repo_file("config/aitas_camera.yaml"),
                         help="calibration parameter YAML (default as for run)")
     recall.add_argument("--score", type=float, help="score threshold (default: the detector's)")
     recall.add_argument("--thresholds", type=lambda s: [float(v) for v in s.split(",")],

@@ -90,6 +90,13 @@ class Detections:
         """No detections."""
         return Detections(np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=np.int64), list(class_names))
 
+    def target_confidences(self) -> np.ndarray:
+        """Each box's probability of being the vessel of interest where known, else its score.
+
+        The ranking the tracker's confidence follows (``confidence_class``).
+        """
+        return np.where(np.isfinite(self.p_target), self.p_target, self.scores)
+
     def labels(self) -> list[str]:
         """Class name of each detection."""
         return [self.class_names[i] if 0 <= i < len(self.class_names) else str(i) for i in self.class_ids]

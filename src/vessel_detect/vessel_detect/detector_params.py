@@ -233,11 +233,9 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
         horizon = horizon_band_top(camera_model)
     detector = VesselDetector(model or open_model(values), config, horizon, reference)
     if values.get("appearance_model"):
-        from vessel_calib.dataset import repo_root
+        from vessel_calib.dataset import in_repo
 
-        path = Path(values["appearance_model"]).expanduser()
-        if not path.is_absolute() and not path.is_file():
-            path = repo_root() / path
+        path = in_repo(values["appearance_model"])
         detector.appearance = AppearanceModel.load(path)
         if detector.appearance.needs_camera and camera_model is None:
             raise ModelError(f"appearance model {path} uses box geometry ({detector.appearance.feature_set}) and "

@@ -197,9 +197,11 @@ def resolve_model(
 
     """
     if spec.path:
+        from vessel_calib.dataset import in_repo
+
         path = Path(spec.path).expanduser()
-        if not path.is_absolute() and not path.is_file() and (repo_root() / path).is_file():
-            path = repo_root() / path  # a model shipped in the repository, named from its root
+        if in_repo(path).is_file():
+            path = in_repo(path)  # found here, or a model shipped in the repository, named from its root
         if not path.is_file():
             raise ModelError(f"model file {path} (model_path) not found; {how_to_get(spec)}")
         _verify(path, spec, "model file")

@@ -707,8 +707,7 @@ class MultiTargetTracker:
     # ------------------------------------------------------------------ life cycle
 
     def _spawn(self, stamp: float, boxes: np.ndarray, centers: np.ndarray, sizes: np.ndarray,
-               confs: np.ndarray, free_dets: list[int], used_dets: list[int],
-               names: list[str] | None = None) -> list[_Track]:
+               confs: np.ndarray, free_dets: list[int], used_dets: list[int], names: list[str]) -> list[_Track]:
         cfg = self.config
         created: list[_Track] = []
         if not free_dets:
@@ -730,7 +729,7 @@ class MultiTargetTracker:
             track = _Track(track_id=f"{cfg.id_prefix}{self._next_id}",
                            kf=self._new_filter(centers[di], sizes[di]), stamp=stamp, first_seen=stamp,
                            last_seen=stamp, size=sizes[di].copy(),
-                           confidence=float(confs[di]), label=names[di] if names else "",
+                           confidence=float(confs[di]), label=names[di],
                            history=deque(maxlen=cfg.history_length))
             self._next_id += 1
             self.counters.tracks_created += 1

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vessel_detect.detector import LETTERBOX_PAD_VALUE
+from vessel_detect.detector import LETTERBOX_PAD_VALUE, horizon_band_top, letterbox
 
 
 @dataclass(frozen=True)
@@ -30,6 +30,18 @@ class AugmentSettings:
     value: float = 0.35
     focus_target: float = 0.7
     min_visible: float = 0.45
+
+
+def band_top_px(camera, margin_px: float) -> float:
+    """Top row of the band the detector's ``band`` mode shows the network (0 without a calibration)."""
+    horizon = horizon_band_top(camera) if camera is not None else None
+    return max(0.0, horizon - margin_px) if horizon is not None else 0.0
+
+
+def band_input(image: np.ndarray, camera, input_hw: tuple[int, int], margin_px: float) -> np.ndarray:
+    """The ``(1, 3, H, W)`` network input of ``image`` in the detector's ``band`` mode."""
+    tensor, _ = letterbox(image[int(math.floor(band_top_px(camera, margin_px))):], input_hw)
+    return tensor
 
 
 @dataclass

@@ -13,17 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError, ModelError
-
-
-def band_tensors(images, camera, input_hw, margin_px: float = 40.0):
-    """The network inputs of ``images`` in the detector's ``band`` mode."""
-    from vessel_detect.detector import horizon_band_top, letterbox
-
-    top = max(0, int((horizon_band_top(camera) or 0.0) - margin_px)) if camera is not None else 0
-    for image in images:
-        tensor, _ = letterbox(image[top:], input_hw)
-        yield tensor
+from vessel_detect.training.augment import band_input
 
 
 def quantize_model(model: Path, out: Path, tensors: list[np.ndarray]) -> None:
@@ -64,6 +56,8 @@ def add_parser(sub) -> None:
     parser.add_argument("--videos", default="7-12", help="calibration frames: training videos only (default 7-12)")
     parser.add_argument("--calib", default=None, help="calibration YAML (default config/aitas_camera.yaml)")
     parser.add_argument("--frames", type=int, default=64, help="calibration frames (spread over the videos)")
+    parser.add_argument("--band-margin-px", type=float, default=40.0,
+                        help="the detector's band_margin_px the model runs with (default 40)")
     parser.set_defaults(func=cmd_quantize)
 
 
@@ -73,19 +67,18 @@ def cmd_quantize(args: argparse.Namespace) -> int:
 
     from vessel_detect.detect_cli import _open_dataset, _parse_videos
     from vessel_detect.detector import OnnxModel
-    from vessel_detect.training.train_cli import _default
 
     model, out = Path(args.model), Path(args.out)
     onnx = OnnxModel(model)
     from vessel_calib.params import load_camera_yaml
 
-    calib = args.calib or _default("config/aitas_camera.yaml")
+    calib = args.calib or repo_file("config/aitas_camera.yaml")
     camera = load_camera_yaml(calib) if calib else None
     dataset = _open_dataset(args.data)
     frames = dataset.frames(_parse_videos(args.videos))
     step = max(1, len(frames) // max(1, args.frames))
     images = [im for im in (cv2.imread(str(f.path)) for f in frames[::step][: args.frames]) if im is not None]
-    quantize_model(model, out, list(band_tensors(images, camera, onnx.input_hw)))
+    quantize_model(model, out, [band_input(image, camera, onnx.input_hw, args.band_margin_px) for image in images])
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB from {model.stat().st_size / 1e6:.1f} MB), calibrated on "
           f"{len(images)} frames of videos {args.videos}", file=sys.stderr)
     return 0

@@ -17,14 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vessel_calib.dataset import repo_file, repo_root
 from vessel_calib.errors import DataError
-
-REPO_ROOT = Path(__file__).resolve().parents[4]
-
-
-def _default(path: str) -> str | None:
-    candidate = REPO_ROOT / path
-    return str(candidate) if candidate.is_file() else None
 
 
 def add_parser(sub) -> None:
@@ -39,12 +33,12 @@ def add_parser(sub) -> None:
                        help="videos whose frames score the model every --val-every epochs (default: the training "
                             "videos); their hand boxes when the dataset has them (scoring only), else GPS boxes")
     train.add_argument("--out", required=True, help="ONNX model to write, e.g. models/vessel_yolox_nano.onnx")
-    train.add_argument("--params", default=_default("config/aitas.yaml"),
+    train.add_argument("--params", default=repo_file("config/aitas.yaml"),
                        help="parameter YAML of the COCO preset run and the tide (default config/aitas.yaml)")
-    train.add_argument("--calib", default=_default("config/aitas_camera.yaml"),
+    train.add_argument("--calib", default=repo_file("config/aitas_camera.yaml"),
                        help="calibration YAML the GPS is projected through (default config/aitas_camera.yaml)")
     train.add_argument("--water-level", help="tide CSV (default: the params file's fuser water_level.file)")
-    train.add_argument("--coco-params", default=_default("config/detector_coco.yaml"),
+    train.add_argument("--coco-params", default=repo_file("config/detector_coco.yaml"),
                        help="parameter YAML of the generic COCO detector whose boxes seed the labels "
                             "(default config/detector_coco.yaml)")
     train.add_argument("--coco-detections", help="a saved `detect run --params config/detector_coco.yaml` CSV of "
@@ -82,8 +76,6 @@ def _water_levels(args, params_path: str | None):
         fuser = read_params_yaml(params_path).get("fuser") or {}
         path = ((fuser.get("water_level") or {}).get("file") if isinstance(fuser.get("water_level"), dict)
                 else fuser.get("water_level.file"))
-        if path and not Path(path).is_absolute():
-            path = str(REPO_ROOT / path) if (REPO_ROOT / path).is_file() else path
     return load_water_level(path) if path else None
 
 
@@ -113,7 +105,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from vessel_detect.detect_cli import _camera_for, _open_dataset, _parse_videos
     from vessel_detect.detector_params import load_params_file
     from vessel_detect.model_store import ModelSpec, resolve_model
-    from vessel_detect.training.augment import AugmentSettings
+    from vessel_detect.training.augment import AugmentSettings, band_input
     from vessel_detect.training.labels import LabelSettings, generate_labels
     from vessel_detect.training.model_card import model_card
     from vessel_detect.training.settings import TrainSettings
@@ -148,8 +140,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     label_settings = LabelSettings()
     labels, size_model = generate_labels(dataset, camera, frames, detections, label_settings, water)
     usable = [lab for lab in labels if lab.status != "gps_invalid"]
-    images = read_images(dataset.frames(sorted(set(videos or []) | set(val_videos or []))) if val_videos
-                         else frames, log=lambda m: print(m, file=sys.stderr))
+    val_only = [f for f in dataset.frames(val_videos) if f.video not in set(videos)] if val_videos and videos else []
+    images = read_images(frames + val_only, log=lambda m: print(m, file=sys.stderr))
     usable = [lab for lab in usable if (lab.video, lab.frame) in images]
     counts = {}
     for lab in labels:
@@ -165,7 +157,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                           log=lambda m: print(m, file=sys.stderr, flush=True))
     out.parent.mkdir(parents=True, exist_ok=True)
     probe_key = sorted(images)[0]
-    probe = _probe_tensor(images[probe_key], camera, settings)
+    probe = band_input(images[probe_key], camera, settings.input_hw, settings.band_margin_px)
     result.onnx_max_abs_diff = save_model(model, out, settings, probe)
     out.with_suffix(".labels.csv").write_text(labels_csv(labels))
     summary = {
@@ -177,8 +169,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         "size_model": {"width": size_model.width, "height": size_model.height, "n_points": size_model.n_points},
         "history": result.history, "seconds": result.seconds, "onnx_max_abs_diff": result.onnx_max_abs_diff,
         "validation": None if result.validation is None else {
-            "reference": result.validation.reference, "frames": result.validation.frames,
-            "recall": result.validation.recall, "top1": result.validation.top1_rate},
+            "reference": reference_name, "frames": result.validation.frames,
+            "recall": result.validation.frame_recall, "top1": result.validation.top_rate},
     }
     out.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
     out.with_suffix(".md").write_text(model_card(out, summary))
@@ -193,7 +185,7 @@ def _relative(path: str | None) -> str | None:
     if not path:
         return path
     try:
-        return str(Path(path).resolve().relative_to(REPO_ROOT))
+        return str(Path(path).resolve().relative_to(repo_root()))
     except ValueError:
         return path
 
@@ -202,14 +194,6 @@ def _jsonable(value):
     from dataclasses import asdict
 
     return json.loads(json.dumps(asdict(value)))
-
-
-def _probe_tensor(image, camera, settings) -> np.ndarray:
-    from vessel_detect.detector import horizon_band_top, letterbox
-
-    top = max(0, int((horizon_band_top(camera) or 0.0) - settings.band_margin_px))
-    tensor, _ = letterbox(image[top:], settings.input_hw)
-    return tensor
 
 
 def _val_references(dataset, val_videos, labels, images) -> tuple[dict, str]:

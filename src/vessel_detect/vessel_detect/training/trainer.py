@@ -8,11 +8,9 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
-import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -20,16 +18,14 @@ import numpy as np
 import torch
 
 from vessel_calib.errors import DataError, ModelError
-from vessel_detect.box_ops import box_iou
 from vessel_detect.decoders import OutputLayout
 from vessel_detect.detector import DetectorConfig, VesselDetector, horizon_band_top
-from vessel_detect.training.augment import random_sample
+from vessel_detect.recall import RecallResult, recall_at
+from vessel_detect.training.augment import band_top_px, random_sample
 from vessel_detect.training.labels import CLASS_NAMES, FrameLabels
 from vessel_detect.training.loss import yolox_loss
 from vessel_detect.training.model import STRIDES, ExportHead, TrainableYolox, export_onnx
 from vessel_detect.training.settings import TrainSettings
-
-HIT_IOU = 0.3
 
 
 class TorchDetectorModel:
@@ -59,43 +55,15 @@ def band_detector(model, camera, score: float, input_hw) -> VesselDetector:
     return VesselDetector(model, config, top, camera.image_size if camera is not None else (1280, 720))
 
 
-@dataclass
-class Validation:
-    """Recall of the vessel of interest on validation frames, and how often it is the likeliest box."""
-
-    frames: int = 0
-    hits: int = 0
-    top1: int = 0
-    reference: str = ""
-
-    @property
-    def recall(self) -> float:
-        """Share of frames with a box of the vessel (IoU >= 0.3)."""
-        return self.hits / self.frames if self.frames else math.nan
-
-    @property
-    def top1_rate(self) -> float:
-        """Share of frames whose box of highest ``p_target`` is the vessel."""
-        return self.top1 / self.frames if self.frames else math.nan
-
-
-def validate(detector: VesselDetector, images: dict, references: dict[tuple[int, int], np.ndarray],
-             reference_name: str) -> Validation:
-    """Score ``detector`` on the frames of ``references`` (boxes of the vessel of interest per frame)."""
-    result = Validation(reference=reference_name)
-    for key, truth in sorted(references.items()):
-        image = images.get(key)
-        if image is None:
-            continue
-        dets = detector.detect(image)
-        result.frames += 1
-        if len(dets) == 0:
-            continue
-        iou = box_iou(np.asarray(truth, float).reshape(-1, 4), dets.boxes_xyxy).max(axis=0)
-        result.hits += int((iou >= HIT_IOU).any())
-        rank_by = np.where(np.isfinite(dets.p_target), dets.p_target, dets.scores)
-        result.top1 += int(iou[int(np.argmax(rank_by))] >= HIT_IOU)
-    return result
+def validate(detector: VesselDetector, images: dict, references: dict[tuple[int, int], np.ndarray]) -> RecallResult:
+    """``detect recall``'s figures of ``detector`` on the frames of ``references`` (the vessel's boxes per frame)."""
+    detections = {}
+    for key in references:
+        if key in images:
+            dets = detector.detect(images[key])
+            detections[key] = (dets.boxes_xyxy, dets.target_confidences())
+    return recall_at({k: np.asarray(v, float).reshape(-1, 4) for k, v in references.items() if k in images},
+                     detections, 0.0)
 
 
 def _targets(samples) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
@@ -117,7 +85,7 @@ class TrainResult:
     """What a run produced: per-epoch history and the final validation."""
 
     history: list[dict]
-    validation: Validation | None
+    validation: RecallResult | None
     seconds: float
     onnx_max_abs_diff: float = math.nan
 
@@ -133,7 +101,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
     rng = np.random.default_rng(settings.seed)
     model = TrainableYolox(init_model, CLASS_NAMES)
     optimiser = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
-    band_top = (horizon_band_top(camera) if camera is not None else 0.0) - settings.band_margin_px
+    band_top = band_top_px(camera, settings.band_margin_px)
     steps_per_epoch = max(1, math.ceil(len(labels) / settings.batch_size))
     started = time.monotonic()
     history = []
@@ -170,10 +138,10 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
             model.eval()
             detector = band_detector(TorchDetectorModel(model, settings.input_hw), camera, settings.val_score,
                                      settings.input_hw)
-            validation = validate(detector, images, val_references, val_reference_name)
-            entry.update(val_recall=validation.recall, val_top1=validation.top1_rate, val_frames=validation.frames)
-            line += (f"  val recall {100 * validation.recall:.1f} %, likeliest box is the vessel "
-                     f"{100 * validation.top1_rate:.1f} % ({validation.frames} frames, {val_reference_name})")
+            validation = validate(detector, images, val_references)
+            entry.update(val_recall=validation.frame_recall, val_top1=validation.top_rate, val_frames=validation.frames)
+            line += (f"  val recall {100 * validation.frame_recall:.1f} %, likeliest box is the vessel "
+                     f"{100 * validation.top_rate:.1f} % ({validation.frames} frames, {val_reference_name})")
         history.append(entry)
         log(line)
     model.eval()
@@ -223,11 +191,6 @@ def labels_csv(labels: list[FrameLabels]) -> str:
     return buffer.getvalue()
 
 
-def settings_dict(settings: TrainSettings) -> dict:
-    """JSON-friendly settings."""
-    return json.loads(json.dumps(asdict(settings)))
-
-
 def read_images(frames, log=print) -> dict:
     """(video, frame) -> BGR image of every readable frame; unreadable ones are reported and left out."""
     images = {}
@@ -238,7 +201,3 @@ def read_images(frames, log=print) -> dict:
             continue
         images[(record.video, record.frame)] = image
     return images
-
-
-def _print(*args):
-    print(*args, file=sys.stderr, flush=True)
