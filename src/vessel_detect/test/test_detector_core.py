@@ -10,6 +10,7 @@ import pytest
 from vessel_calib.errors import ModelError, VesselError
 from vessel_detect.decoders import grid_point_count
 from vessel_detect.detector import (
+    Detections,
     DetectorConfig,
     Letterbox,
     OnnxModel,
@@ -220,3 +221,20 @@ def test_annotate_draws_band_masks_and_boxes_at_the_requested_scale(tmp_path):
     assert image[250, 50].tolist() == [0, 255, 0]  # the box's left edge
     assert (image[:, :, 2] == 255).any()  # the mooring post polygon in red
     assert not frame.any()  # the input is left alone
+
+
+def test_detections_of_a_scaled_stream_are_published_in_calibrated_pixels():
+    """A 640x360 stream of a 1280x720 calibration: boxes scale; another aspect ratio is refused, named."""
+    from vessel_detect.image_codec import ImageError
+
+    found = Detections(np.array([[10.0, 20.0, 30.0, 50.0]]), np.array([0.9]), np.array([0]), ["boat"],
+                       np.array([0.7]))
+    assert found.in_calibrated_pixels((1280, 720), (1280, 720)) is found
+    half = found.in_calibrated_pixels((640, 360), (1280, 720))
+    np.testing.assert_allclose(half.boxes_xyxy, [[20.0, 40.0, 60.0, 100.0]])
+    np.testing.assert_allclose(half.p_target, [0.7])
+    np.testing.assert_allclose(found.in_calibrated_pixels((5120, 2880), (1280, 720)).boxes_xyxy,
+                               [[2.5, 5.0, 7.5, 12.5]])
+    with pytest.raises(ImageError, match="640x480 but the calibration is for 1280x720") as error:
+        found.in_calibrated_pixels((640, 480), (1280, 720))
+    assert error.value.kind == "wrong_image_size"

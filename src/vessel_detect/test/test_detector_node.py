@@ -107,6 +107,13 @@ def probe(ros_env):
     probe.close()
 
 
+def _resized_jpeg(jpeg: bytes, width: int, height: int) -> bytes:
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.imencode(".jpg", cv2.resize(image, (width, height)))[1].tobytes()
+
+
 def test_detector_node_detects_on_a_real_frame_counts_bad_frames_and_keeps_running(
     start_node, probe, data_dir, model_path
 ):
@@ -145,13 +152,15 @@ def test_detector_node_detects_on_a_real_frame_counts_bad_frames_and_keeps_runni
         ("bad_encoding", probe.raw, _raw("16UC1", 4, 4, 8, bytes(32), 1_601_494_002)),
         ("empty_image", probe.raw, _raw("bgr8", 0, 0, 0, b"", 1_601_494_003)),
         ("bad_image_size", probe.raw, _raw("bgr8", 4, 4, 12, bytes(10), 1_601_494_004)),
+        # Another camera's aspect ratio (4:3): no scale puts its boxes in the calibration's 1280x720 pixels.
+        ("wrong_image_size", probe.compressed, _compressed(_resized_jpeg(jpeg, 640, 480), 1_601_494_005)),
     ]
     wanted = tuple(kind for kind, _, _ in bad_frames)
     for kind, publisher, message in bad_frames:
         publisher.publish(message)
         counted = probe.wait(lambda kind=kind: probe.counts().get(kind, 0) >= 1, 30.0)
         assert counted, f"{kind} not counted: {probe.counts()}\n{node.output()}"
-    assert all(probe.output_for(sec) is None for sec in range(1_601_494_001, 1_601_494_005))
+    assert all(probe.output_for(sec) is None for sec in range(1_601_494_001, 1_601_494_006))
 
     # A burst: the node keeps only the newest frame; every received frame is processed, dropped or bad, and the
     # newest is always answered.

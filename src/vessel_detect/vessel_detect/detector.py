@@ -85,6 +85,28 @@ class Detections:
     def __len__(self) -> int:
         return int(self.scores.shape[0])
 
+    def in_calibrated_pixels(self, image_wh: tuple[int, int], calibrated_wh: tuple[int, int],
+                             aspect_tolerance: float = 0.01) -> Detections:
+        """These detections of an ``image_wh`` frame in the pixels of the calibration's ``calibrated_wh``.
+
+        Everything downstream (tracker, fuser, the calibration's H) reads calibrated pixels. A frame of another
+        size with the same aspect ratio (a scaled stream) has its boxes scaled; one of another aspect ratio is
+        another camera or a crop, which no scale makes right: ``ImageError`` (kind ``wrong_image_size``).
+        """
+        from vessel_detect.image_codec import ImageError
+
+        (width, height), (ref_w, ref_h) = image_wh, calibrated_wh
+        if (width, height) == (ref_w, ref_h):
+            return self
+        sx, sy = ref_w / width, ref_h / height
+        if abs(sx / sy - 1.0) > aspect_tolerance:
+            raise ImageError(
+                "wrong_image_size",
+                f"image is {width}x{height} but the calibration is for {ref_w}x{ref_h} (another aspect ratio): "
+                f"publish the calibrated camera's frames, or calibrate this stream (camera.image_width/height)")
+        boxes = self.boxes_xyxy * np.array([sx, sy, sx, sy])
+        return Detections(boxes, self.scores, self.class_ids, self.class_names, self.p_target)
+
     @staticmethod
     def empty(class_names: Sequence[str] = ()) -> Detections:
         """No detections."""

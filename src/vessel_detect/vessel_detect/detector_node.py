@@ -44,7 +44,8 @@ from vessel_detect.detector_params import ALL_PARAMS, NODE_NAME, build_detector
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
-PROBLEM_KINDS = ("bad_encoding", "empty_image", "bad_image_size", "undecodable_image", "detector_error")
+PROBLEM_KINDS = ("bad_encoding", "empty_image", "bad_image_size", "wrong_image_size", "undecodable_image",
+                 "detector_error")
 EVENT_KINDS = ("frames_received", "frames_processed", "dropped_frames", "detections_published")
 LATENCY_WINDOW = 200
 
@@ -216,7 +217,9 @@ class DetectorNode(Node):
             bgr = compressed_to_bgr(message.data, message.format)
         else:
             bgr = image_to_bgr(message.encoding, message.height, message.width, message.step, message.data)
-        detections = self.detector.detect(bgr)
+        height, width = bgr.shape[:2]
+        in_image_pixels = self.detector.detect(bgr)
+        detections = in_image_pixels.in_calibrated_pixels((width, height), self.detector.reference_wh)
         header = message.header
         if not header.frame_id and self.values["frame_id"]:
             header.frame_id = self.values["frame_id"]
@@ -232,7 +235,7 @@ class DetectorNode(Node):
             image = Image()
             image.header = header
             for field, value in bgr_to_image_fields(
-                annotate(bgr, detections, self.detector, float(self.values["annotated_scale"]))
+                annotate(bgr, in_image_pixels, self.detector, float(self.values["annotated_scale"]))
             ).items():
                 setattr(image, field, value)
             self.annotated_pub.publish(image)

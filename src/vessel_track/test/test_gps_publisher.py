@@ -50,3 +50,78 @@ def test_fix_status_follows_the_target():
         assert fields.status == NavSatStatus.STATUS_NO_FIX and math.isnan(fields.latitude)
     stale = fix_fields_of_track(_track(), 130.0, max_coast_s=12.0)
     assert stale.status == NavSatStatus.STATUS_NO_FIX
+
+
+@pytest.mark.parametrize("bad, problem", [
+    (dict(latitude=95.0), "impossible_position"),
+    (dict(latitude=1e9), "impossible_position"),
+    (dict(longitude=-181.0), "impossible_position"),
+    (dict(latitude=33.9), "implausible_target"),            # 133 km north of the camera
+    (dict(position_covariance=[-4.0, 0.0, 0.0, 4.0]), "bad_covariance"),   # a negative variance
+    (dict(position_covariance=[4.0, 1.0, 3.0, 4.0]), "bad_covariance"),    # not symmetric
+    (dict(position_covariance=[1.0, 3.0, 3.0, 1.0]), "bad_covariance"),    # not positive semi-definite
+    (dict(position_covariance=[1.0, math.inf, 0.0, 1.0]), "bad_covariance"),
+    (dict(latitude=math.nan), "nonfinite_target"),
+])
+def test_an_impossible_target_is_never_published_as_a_fix(bad, problem):
+    from sensor_msgs.msg import NavSatStatus
+
+    from vessel_track.gps_publisher_node import fix_fields_of_track
+
+    camera = (32.70297, -117.234631)
+    assert fix_fields_of_track(_track(), 104.0, 12.0, origin=camera).status == NavSatStatus.STATUS_FIX
+    fields = fix_fields_of_track(_track(**bad), 104.0, 12.0, origin=camera)
+    assert fields.status == NavSatStatus.STATUS_NO_FIX and math.isnan(fields.latitude)
+    assert fields.problem == problem and fields.detail
+
+
+def _track_message(track_id, latitude=32.703, stamp_s=100):
+    from vessel_msgs.msg import VesselTrack
+
+    track = VesselTrack()
+    track.id, track.is_target, track.has_world, track.status = track_id, True, True, 1
+    track.latitude, track.longitude = latitude, -117.233
+    track.last_seen.sec = stamp_s
+    track.position_covariance = [25.0, 5.0, 5.0, 4.0]
+    track.expected_error_m = 10.0
+    return track
+
+
+def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypatch):
+    """A stamp with nanosec >= 1e9 is invalid; two tracks flagged is_target (even with one id) are ambiguous."""
+    import rclpy
+    import rclpy.node
+    from sensor_msgs.msg import NavSatStatus
+
+    pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
+    from vessel_msgs.msg import VesselTrackArray
+    from vessel_track.gps_publisher_node import GpsPublisherNode
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=199)
+    node_init = rclpy.node.Node.__init__
+    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, name, **kw: node_init(self, name, context=context,
+                                                                                          **kw))
+    try:
+        node = GpsPublisherNode()
+        fixes = []
+        node.fix_publisher.publish = fixes.append
+
+        def frame(sec, *tracks, nanosec=0):
+            message = VesselTrackArray()
+            message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
+            message.tracks = list(tracks)
+            node.on_tracks(message)
+
+        frame(100, _track_message("T1"))
+        assert [f.status.status for f in fixes] == [NavSatStatus.STATUS_FIX]
+        frame(101, _track_message("T1", stamp_s=101), nanosec=1_000_000_000)
+        assert len(fixes) == 1 and node.health.counts.get("bad_stamp") == 1
+        frame(102, _track_message("T1", stamp_s=102), _track_message("T1", 32.704, stamp_s=102))
+        assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX and node.health.counts["several_targets"] == 1
+        frame(103, _track_message("T1", 95.0, stamp_s=103))
+        assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX
+        assert node.health.counts["impossible_position"] == 1
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

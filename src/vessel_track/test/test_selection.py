@@ -284,3 +284,52 @@ def test_a_boat_the_detector_calls_unlikely_is_never_the_target_with_positive_ev
     for k in range(3, 12):
         last = selector.update(4.0 * k, [_wt("A", [10.0 * k, 0], conf=0.02)])
     assert last is None
+
+
+def _evidence_config(**kw):
+    return SelectionConfig(confidence_score="evidence", path_log_floor=1.0, positive_evidence_only=True,
+                           reacquire_window_s=3600.0, **kw)
+
+
+def _followed_then_swapped(config):
+    """A follows the vessel for 40 s, then the screen tracker moves it onto another boat beside it (low p)."""
+    selector = OnlineTargetSelector(config)
+    for k in range(10):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], conf=0.8, velocity=(2.0, 0))])
+    assert selector.target == "A"
+    published = [selector.update(4.0 * k, [_wt("A", [180 + 2.0 * (k - 10), 60], conf=0.05, velocity=(0.5, 0))])
+                 for k in range(10, 13)]
+    return selector, published
+
+
+def test_a_target_whose_recent_boxes_say_another_boat_loses_the_role():
+    """Video 12's far turn: without the recent-evidence rule the long history keeps the swapped track published."""
+    _, kept = _followed_then_swapped(_evidence_config())
+    assert kept == ["A", "A", "A"]
+    selector, published = _followed_then_swapped(_evidence_config(recent_evidence_s=8.0))
+    assert published[-1] is None and selector.identity_changes == 1
+    # The same track, on the other boat, does not take the vessel's history back ...
+    assert selector.update(52.0, [_wt("A", [182, 60], conf=0.05, velocity=(0.5, 0))]) is None
+    # ... but a new track where the vessel goes on does.
+    target = selector.update(56.0, [_wt("A", [183, 60], conf=0.05), _wt("V", [228, 50], conf=0.8, velocity=(2.0, 0))])
+    assert target == "V" and selector.continued == {"V": "A~1"}
+
+
+def test_evidence_forgets_with_a_half_life_in_seconds():
+    """A track that followed another boat and now follows the vessel is ranked by what it follows now."""
+    old_then_new = np.r_[np.full(20, 0.01), np.full(5, 0.8)]
+    ages = np.r_[np.full(20, 200.0), np.zeros(5)]
+    config = _evidence_config(evidence_half_life_s=30.0)
+    assert config.trajectory_score(old_then_new, 100.0, 0, 0) < 0  # no ages: no forgetting
+    assert config.trajectory_score(old_then_new, 100.0, 0, 0, ages=ages) > 0
+    assert trajectory_score([0.8, 0.8], 100.0, mode="evidence", weights=[1.0, 0.5]) == pytest.approx(
+        1.5 * math.log(4.0) * math.log(100.0))
+    with pytest.raises(DataError, match="weights"):
+        trajectory_score([0.8, 0.8], 100.0, mode="evidence", weights=[1.0])
+
+
+@pytest.mark.parametrize("field", ["recent_evidence_s", "evidence_half_life_s"])
+@pytest.mark.parametrize("value", [-1.0, math.nan, math.inf])
+def test_evidence_windows_are_validated(field, value):
+    with pytest.raises(DataError, match=field):
+        SelectionConfig(**{field: value})

@@ -286,12 +286,14 @@ def test_invalid_boxes_are_dropped_and_counted():
         [500, 400, 500, 430],  # zero width
         [500, 430, 520, 400],  # negative height
         box(900, 430),  # NaN score
+        [1e300, 400, 1.5e300, 430],  # finite, but no camera's pixel
+        [-3e5, 400, -2.9e5, 430],
     ]
-    states = tracker.update(T0, boxes, [0.9, 0.9, 0.9, 0.9, 0.9, 0.9, np.nan])
+    states = tracker.update(T0, boxes, [0.9, 0.9, 0.9, 0.9, 0.9, 0.9, np.nan, 0.9, 0.9])
     assert len(states) == 1
     np.testing.assert_allclose(states[0].center, [500.0, 420.0])
-    assert tracker.counters.detections_in == 7
-    assert tracker.counters.detections_invalid == 6
+    assert tracker.counters.detections_in == 9
+    assert tracker.counters.detections_invalid == 8
 
 
 def test_low_scores_are_ignored_and_counted():

@@ -39,6 +39,8 @@ from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, main_with_checks
 
 COVARIANCE_MODES = ("sum", "filter", "error_model", "max")
 STATUS_LOST = 3
+MAX_TARGET_DISTANCE_M = 1.0e5
+"""A target farther than this from the camera is a calibration or fuser fault, never a fix."""
 
 
 @dataclass
@@ -49,6 +51,8 @@ class FixFields:
     latitude: float
     longitude: float
     covariance_enu: list[float]   # 9 values, row-major
+    problem: str = ""             # why a target was refused as impossible (a diagnostics counter), "" if it was not
+    detail: str = ""
 
 
 def enu_covariance(position_covariance_en, expected_error_m: float, mode: str = "sum",
@@ -80,20 +84,58 @@ def enu_covariance(position_covariance_en, expected_error_m: float, mode: str = 
     return [float(v) for v in out.ravel()]
 
 
+def covariance_problem(position_covariance_en) -> str:
+    """Why a 2x2 east-north covariance (4 values, row-major) cannot be published, or "" if it can.
+
+    It must be finite, symmetric and positive semi-definite, to the precision of its own entries.
+    """
+    P = np.asarray(position_covariance_en, dtype=float).reshape(-1)
+    if P.size != 4:
+        return f"position covariance has {P.size} values, not 4"
+    if not np.all(np.isfinite(P)):
+        return "position covariance is not finite"
+    P = P.reshape(2, 2)
+    scale = float(np.abs(P).max()) or 1.0
+    if abs(P[0, 1] - P[1, 0]) > 1e-6 * scale:
+        return f"position covariance is not symmetric ({P[0, 1]:g} against {P[1, 0]:g})"
+    if float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()) < -1e-9 * scale:
+        return f"position covariance is not positive semi-definite (diagonal {P[0, 0]:g}, {P[1, 1]:g})"
+    return ""
+
+
 def fix_fields_of_track(track, stamp: float, max_coast_s: float, mode: str = "sum",
-                        altitude_variance_m2: float = 1.0e4) -> FixFields:
-    """NavSatFix content for a target ``track`` (a VesselTrack-like object) at ``stamp``; NO_FIX if unusable."""
+                        altitude_variance_m2: float = 1.0e4, origin: tuple[float, float] | None = None,
+                        max_distance_m: float = MAX_TARGET_DISTANCE_M) -> FixFields:
+    """NavSatFix content for a target ``track`` (a VesselTrack-like object) at ``stamp``; NO_FIX if unusable.
+
+    An impossible target (latitude or longitude out of range, farther than ``max_distance_m`` from ``origin``,
+    the camera, or a covariance that is not finite, symmetric and positive semi-definite) is never published as a
+    fix: NO_FIX, with ``problem`` naming the kind.
+    """
     no_fix = FixFields(NavSatStatus.STATUS_NO_FIX, math.nan, math.nan, [0.0] * 9)
     if track is None or not track.has_world or track.status == STATUS_LOST:
         return no_fix
-    if not (math.isfinite(track.latitude) and math.isfinite(track.longitude)):
-        return no_fix
+    lat, lon = float(track.latitude), float(track.longitude)
+    if not (math.isfinite(lat) and math.isfinite(lon)):
+        return FixFields(**{**no_fix.__dict__, "problem": "nonfinite_target",
+                            "detail": "the target has has_world set but NaN latitude/longitude"})
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        return FixFields(**{**no_fix.__dict__, "problem": "impossible_position",
+                            "detail": f"target at latitude {lat:g}, longitude {lon:g}: outside the globe"})
+    if origin is not None and geodesy.haversine_m(lat, lon, origin[0], origin[1]) > max_distance_m:
+        return FixFields(**{**no_fix.__dict__, "problem": "implausible_target",
+                            "detail": f"the target is more than {max_distance_m / 1000:g} km from the camera: is "
+                                      "the fuser using the same calibration?"})
     if stamp - stamp_to_sec(track.last_seen) > max_coast_s:
         return no_fix
+    problem = "" if all(not math.isfinite(v) for v in track.position_covariance) else covariance_problem(
+        track.position_covariance)
+    if problem:
+        return FixFields(**{**no_fix.__dict__, "problem": "bad_covariance", "detail": problem})
     covariance = enu_covariance(track.position_covariance, track.expected_error_m, mode, altitude_variance_m2)
     if not all(math.isfinite(v) for v in covariance):
         return no_fix
-    return FixFields(NavSatStatus.STATUS_FIX, float(track.latitude), float(track.longitude), covariance)
+    return FixFields(NavSatStatus.STATUS_FIX, lat, lon, covariance)
 
 
 class GpsPublisherNode(Node):
@@ -131,6 +173,8 @@ class GpsPublisherNode(Node):
         self.covariance_type = (NavSatFix.COVARIANCE_TYPE_KNOWN if covariance_type == "known"
                                 else NavSatFix.COVARIANCE_TYPE_APPROXIMATED)
         self.health = NodeHealth(self)
+        self._origin = ((self.camera.camera_lat, self.camera.camera_lon)
+                        if self.camera.camera_lat is not None and self.camera.camera_lon is not None else None)
         self._last_stamp: float | None = None
         self.fix_publisher = self.create_publisher(NavSatFix, fix_topic, reliable_qos(depth))
         self.fixes_publisher = (self.create_publisher(VesselTrackArray, fixes_topic, reliable_qos(depth))
@@ -143,25 +187,26 @@ class GpsPublisherNode(Node):
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
         """Publish the target's fix and the array of every vessel for one image."""
+        if msg.header.stamp.nanosec >= 1_000_000_000:
+            self.health.problem("bad_stamp", f"track array stamp has nanosec {msg.header.stamp.nanosec} (must be "
+                                "below 1e9): message skipped; fix the publisher's stamps")
+            return
         stamp = stamp_to_sec(msg.header.stamp)
         if self._last_stamp is not None and stamp < self._last_stamp:
             self.health.problem("stamp_backwards", "track stamps went backwards (replay restarted?)")
         self._last_stamp = stamp
         self.health.count("frames")
         targets = [t for t in msg.tracks if t.is_target]
+        target = targets[0] if len(targets) == 1 else None
         if len(targets) > 1:
-            self.health.problem("several_targets", "more than one track flagged is_target: the first is used")
-        target = targets[0] if targets else None
-        if target is not None and target.has_world and not (math.isfinite(target.latitude)
-                                                             and math.isfinite(target.longitude)):
-            self.health.problem("nonfinite_target", "the target has has_world set but NaN latitude/longitude")
-        if target is not None and target.has_world and math.isfinite(target.latitude) and \
-                math.isfinite(target.longitude) and geodesy.haversine_m(
-                    target.latitude, target.longitude, self.camera.camera_lat, self.camera.camera_lon) > 1.0e5:
-            self.health.problem("implausible_target", "the target is more than 100 km from the camera: is the "
-                                "fuser using the same calibration?")
+            # Which one is the vessel is unknown: publishing either could send a collision-avoidance stack
+            # after the wrong boat.
+            self.health.problem("several_targets", f"{len(targets)} tracks flagged is_target "
+                                f"({', '.join(t.id for t in targets)}): NO_FIX for this frame")
         fields = fix_fields_of_track(target, stamp, self.max_coast_s, self.covariance_mode,
-                                     self.altitude_variance_m2)
+                                     self.altitude_variance_m2, self._origin)
+        if fields.problem:
+            self.health.problem(fields.problem, f"{fields.detail}: NO_FIX published instead")
         if fields.status == NavSatStatus.STATUS_FIX or self.publish_no_fix:
             fix = NavSatFix()
             fix.header.stamp = msg.header.stamp

@@ -89,6 +89,11 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
                                      "reacquire_fraction of its score to take over, s.", (0.0, 1e9)),
     "selection.positive_evidence_only": ("With the evidence score, only a track whose evidence is positive (more "
                                          "likely the vessel of interest than not) may be the target.", None),
+    "selection.recent_evidence_s": ("With the evidence score, a track whose confidences of the last this many "
+                                    "seconds sum to non-positive log-odds may not be the target (0: off), s.",
+                                    (0.0, 1e9)),
+    "selection.evidence_half_life_s": ("With the evidence score, each confidence's log-odds counts "
+                                       "0.5^(age / half-life) (0: no forgetting), s.", (0.0, 1e9)),
     "selection.path_log_floor": ("Lower bound of the path factor log(max(l, 1)) (paper 0: tracks that have not "
                                  "moved yet all score 0; 1 lets their confidences rank them).", (0.0, 100.0)),
     "offline.outlier_threshold_px": ("Offline smoothing: screen-y outlier threshold, px (paper 5).", (1e-3, 1e4)),

@@ -77,6 +77,15 @@ class SelectionConfig:
         evidence is positive: its detections say it is more likely the vessel of interest than not. For a
         detector that tracks every vessel and gives each its probability of being the target, where a track of
         another boat scores below zero and must never be published as the vessel, however it ranks.
+    recent_evidence_s: with the ``evidence`` score, a track whose confidences of the last ``recent_evidence_s``
+        seconds (at least its newest one) sum to non-positive (clipped) log-odds may not be (or stay) the target,
+        however much evidence it gathered before (0: off). The screen tracker can move a track that followed the
+        vessel of interest onto another boat; its long history would keep it the target while its boxes now say
+        it is not the vessel. Online only: the offline pass scores whole trajectories.
+    evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
+        ``0.5 ** (age / evidence_half_life_s)`` (0: no forgetting). A track that followed another boat and then
+        moved onto the vessel of interest (or the other way round) is ranked by what it follows now, not by a
+        history that belongs to another boat. Online only.
     path_log_floor: the path factor is ``max(log(max(l, 1)), path_log_floor)``. The paper's 0 makes every track
         without significant motion yet score 0, so among them the first one established stays the target
         however unlike the vessel it looks; 1 (a path of e metres) lets the confidences rank them while any
@@ -103,6 +112,25 @@ class SelectionConfig:
     evidence_clip: float = 4.0
     path_log_floor: float = 0.0
     positive_evidence_only: bool = False
+    recent_evidence_s: float = 0.0
+    evidence_half_life_s: float = 0.0
+
+    def recent_evidence_ok(self, confidences, ages) -> bool:
+        """Whether the confidences of the last ``recent_evidence_s`` still say the vessel of interest.
+
+        ``ages``: seconds before now of each confidence, same order; the newest always counts.
+        """
+        if self.recent_evidence_s <= 0 or self.confidence_score != "evidence":
+            return True
+        c = np.asarray(confidences, dtype=float).reshape(-1)
+        a = np.asarray(ages, dtype=float).reshape(-1)
+        if c.size == 0:
+            return True
+        recent = (a <= self.recent_evidence_s) | (np.arange(c.size) == c.size - 1)
+        c = c[recent & np.isfinite(c)]
+        if c.size == 0:
+            return True
+        return float(np.sum(clipped_log_odds(c, self.evidence_clip))) > 0
 
     def eligible_score(self, score: float) -> bool:
         """Whether a trajectory of this score may be the vessel of interest (``positive_evidence_only``)."""
@@ -132,12 +160,29 @@ class SelectionConfig:
             raise DataError(f"selection: path_log_floor must be a finite number >= 0, got {self.path_log_floor!r}")
         if self.history_length < 1:
             raise DataError(f"selection: history_length must be >= 1, got {self.history_length!r}")
+        for name in ("recent_evidence_s", "evidence_half_life_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise DataError(f"selection: {name} must be a finite number of seconds >= 0 (0: off), got {value!r}")
 
-    def trajectory_score(self, confidences, path_m: float, consistent: int, known: int) -> float:
-        """``trajectory_score`` with this configuration (``consistent`` of ``known`` boxes size-consistent)."""
+    def trajectory_score(self, confidences, path_m: float, consistent: int, known: int, ages=None) -> float:
+        """``trajectory_score`` with this configuration.
+
+        ``consistent`` of ``known`` boxes are size-consistent; ``ages``, seconds before now of each confidence,
+        serve ``evidence_half_life_s``.
+        """
+        weights = None
+        if ages is not None and self.evidence_half_life_s > 0:
+            weights = 0.5 ** (np.maximum(np.asarray(ages, dtype=float), 0.0) / self.evidence_half_life_s)
         return trajectory_score(confidences, path_m, self.confidence_percentile,
                                 consistent if self.size_consistency else None, known, self.confidence_score,
-                                self.evidence_clip, self.path_log_floor)
+                                self.evidence_clip, self.path_log_floor, weights)
+
+
+def clipped_log_odds(confidences, clip: float) -> np.ndarray:
+    """``log(c / (1 - c))`` of probabilities, each bounded to +-``clip``."""
+    p = np.clip(np.asarray(confidences, dtype=float), 1e-9, 1.0 - 1e-9)
+    return np.clip(np.log(p / (1.0 - p)), -clip, clip)
 
 
 def path_length_m(positions, min_step_m: float = 0.0, covariances=None, noise_sigmas: float = 0.0) -> float:
@@ -185,21 +230,25 @@ def significant_step(p0, p1, cov0, cov1, noise_sigmas: float) -> float:
 
 def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consistent: int | None = None,
                      known: int = 0, mode: str = "percentile", evidence_clip: float = 4.0,
-                     path_log_floor: float = 0.0) -> float:
+                     path_log_floor: float = 0.0, weights=None) -> float:
     """The paper's ``c_0.8 * log(l)`` with ``log(max(l, 1))``; 0 for no confidences.
 
     ``mode="evidence"`` replaces ``c_0.8`` by the sum of the confidences' clipped log-odds
-    (``SelectionConfig.confidence_score``); ``path_log_floor`` bounds the path factor from below. With
+    (``SelectionConfig.confidence_score``), each times its entry of ``weights`` when given (forgetting);
+    ``path_log_floor`` bounds the path factor from below. With
     ``consistent`` given: times ``(consistent + 1) / (known + 2)``, the smoothed share of boxes whose size agrees
     with the fitted vessel size (``SelectionConfig.size_consistency``).
     """
     c = np.asarray(confidences, dtype=float).reshape(-1)
-    c = c[np.isfinite(c)]
+    w = np.ones_like(c) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+    if w.shape != c.shape:
+        raise DataError(f"trajectory_score: {w.size} weights for {c.size} confidences")
+    finite = np.isfinite(c)
+    c, w = c[finite], w[finite]
     if c.size == 0 or not math.isfinite(path_m):
         return 0.0
     if mode == "evidence":
-        p = np.clip(c, 1e-9, 1.0 - 1e-9)
-        confidence = float(np.sum(np.clip(np.log(p / (1.0 - p)), -evidence_clip, evidence_clip)))
+        confidence = float(np.sum(w * clipped_log_odds(c, evidence_clip)))
     else:
         confidence = float(np.percentile(c, percentile))
     score = confidence * max(math.log(max(path_m, 1.0)), path_log_floor)
@@ -396,6 +445,7 @@ def _continuation_cost(cfg: SelectionConfig, last_position, velocity, gap: float
 @dataclass
 class _Running:
     confidences: deque
+    confidence_stamps: deque
     path_m: float = 0.0
     last_position: np.ndarray | None = None
     anchor_position: np.ndarray | None = None      # last point counted into the path
@@ -407,11 +457,19 @@ class _Running:
     eligible: bool = False
     established: bool = False
     inherited_from: str = ""
+    excluded_heir: str = ""   # the track that may not take this history back (it moved onto another boat)
     consistent: int = 0
     known: int = 0
 
-    def score(self, config: SelectionConfig) -> float:
-        return config.trajectory_score(np.fromiter(self.confidences, float), self.path_m, self.consistent, self.known)
+    def ages(self, now: float) -> np.ndarray:
+        return now - np.fromiter(self.confidence_stamps, float)
+
+    def score(self, config: SelectionConfig, now: float) -> float:
+        return config.trajectory_score(np.fromiter(self.confidences, float), self.path_m, self.consistent, self.known,
+                                       self.ages(now))
+
+    def recent_evidence_ok(self, config: SelectionConfig, now: float) -> bool:
+        return config.recent_evidence_ok(np.fromiter(self.confidences, float), self.ages(now))
 
 
 class OnlineTargetSelector:
@@ -436,6 +494,7 @@ class OnlineTargetSelector:
         self.switches = 0
         self.joins = 0
         self.identity_changes = 0
+        self._now = math.nan
         #: This frame's continuations, new track id -> the id whose history it took (online joins and handovers):
         #: the fuser continues the world filter with them.
         self.continued: dict[str, str] = {}
@@ -451,12 +510,13 @@ class OnlineTargetSelector:
         self._lost_score = 0.0
         self._lost_stamp = math.nan
         self._pending_target = None
+        self._now = math.nan
         self.continued = {}
 
     def score(self, track_id: str) -> float:
         """Current score of a track (0 for an unknown one)."""
         running = self._running.get(track_id) or self._ended.get(track_id)
-        return running.score(self.config) if running is not None else 0.0
+        return running.score(self.config, self._now) if running is not None else 0.0
 
     def _try_inherit(self, track_id: str, stamp: float, position: np.ndarray) -> _Running | None:
         """An ended track whose extrapolation reaches ``position`` now: its history continues in ``track_id``."""
@@ -464,7 +524,7 @@ class OnlineTargetSelector:
         cfg = self.config
         for ended_id, ended in self._ended.items():
             gap = stamp - ended.last_stamp
-            if not (0 <= gap <= cfg.join_max_gap_s) or ended.last_position is None:
+            if not (0 <= gap <= cfg.join_max_gap_s) or ended.last_position is None or ended.excluded_heir == track_id:
                 continue
             jump = float(np.hypot(*(position - ended.last_position)))
             cost = _continuation_cost(cfg, ended.last_position, ended.velocity, gap, position, jump, gap)
@@ -483,6 +543,7 @@ class OnlineTargetSelector:
     def update(self, stamp: float, world_tracks) -> str | None:
         """Update the running scores with one frame and return the vessel of interest's track id."""
         cfg = self.config
+        self._now = stamp
         self.continued = {}
         present: set[str] = set()
         measured_now: set[str] = set()
@@ -504,10 +565,12 @@ class OnlineTargetSelector:
                 if measured:
                     running = self._try_inherit(tid, stamp, position)
                 if running is None:
-                    running = _Running(deque(maxlen=cfg.history_length), first_stamp=stamp)
+                    running = _Running(deque(maxlen=cfg.history_length), deque(maxlen=cfg.history_length),
+                                       first_stamp=stamp)
                 self._running[tid] = running
             if wt.screen.updated and math.isfinite(wt.screen.confidence):
                 running.confidences.append(float(wt.screen.confidence))
+                running.confidence_stamps.append(stamp)
             size_consistent = getattr(wt, "size_consistent", None)
             if wt.screen.updated and size_consistent is not None:
                 running.known += 1
@@ -547,6 +610,16 @@ class OnlineTargetSelector:
         self._handover(stamp, measured_now)
         return self._choose(stamp)
 
+    def _appearance_changed(self, track_id: str, stamp: float) -> None:
+        """The target's recent boxes say another boat (``recent_evidence_s``).
+
+        Like ``identity_changed``, but the same track may not take the history back: it follows the other boat.
+        """
+        running = self._running.get(track_id)
+        self.identity_changed(track_id, stamp)
+        if running is not None:
+            running.excluded_heir = track_id
+
     def identity_changed(self, track_id: str, stamp: float) -> None:
         """The track's world motion stopped fitting its history (its filter restarted after repeated outliers).
 
@@ -566,7 +639,7 @@ class OnlineTargetSelector:
 
     def _target_lost(self, tid: str, running: _Running, stamp: float) -> None:
         self._last_target_ended = tid
-        self._lost_score = running.score(self.config)
+        self._lost_score = running.score(self.config, stamp)
         self._lost_stamp = stamp
         self.target = None
 
@@ -599,7 +672,9 @@ class OnlineTargetSelector:
         candidate = self._running[best]
         merged = deque(current.confidences, maxlen=cfg.history_length)
         merged.extend(candidate.confidences)
-        candidate.confidences = merged
+        merged_stamps = deque(current.confidence_stamps, maxlen=cfg.history_length)
+        merged_stamps.extend(candidate.confidence_stamps)
+        candidate.confidences, candidate.confidence_stamps = merged, merged_stamps
         candidate.consistent += current.consistent
         candidate.known += current.known
         candidate.path_m += current.path_m + float(np.hypot(*(candidate.first_position - current.last_position)))
@@ -616,13 +691,16 @@ class OnlineTargetSelector:
         cfg = self.config
         # Established (confirmed, or continuing a joined track) candidates first; a tentative track only
         # while there is nothing else, and it gives way at once to an established one.
-        scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible and r.established}
+        scores = {tid: r.score(cfg, stamp) for tid, r in self._running.items() if r.eligible and r.established}
         if not scores:
-            scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible}
+            scores = {tid: r.score(cfg, stamp) for tid, r in self._running.items() if r.eligible}
         elif self.target in self._running and not self._running[self.target].established:
             self.target = None
-        scores = {tid: s for tid, s in scores.items() if cfg.eligible_score(s)}
-        if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg)):
+        if self.target in self._running and not self._running[self.target].recent_evidence_ok(cfg, stamp):
+            self._appearance_changed(self.target, stamp)
+        scores = {tid: s for tid, s in scores.items() if tid in self._running and cfg.eligible_score(s)
+                  and self._running[tid].recent_evidence_ok(cfg, stamp)}
+        if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg, stamp)):
             self.target = None  # its evidence turned: another boat, not the vessel of interest
         if not scores:
             self._challenger = None
@@ -639,14 +717,17 @@ class OnlineTargetSelector:
             if self._pending_target not in self._running:
                 self._pending_target = None
         if self.target is None or self.target not in self._running:
+            lost_score = self._lost_score
+            if cfg.evidence_half_life_s > 0 and lost_score > 0:
+                lost_score *= 0.5 ** (max(stamp - self._lost_stamp, 0.0) / cfg.evidence_half_life_s)
             if stamp - self._lost_stamp <= cfg.reacquire_window_s and \
-                    scores[best] < cfg.reacquire_fraction * self._lost_score:
+                    scores[best] < cfg.reacquire_fraction * lost_score:
                 self.target = None  # the vessel of interest was lost a moment ago: no stand-in for it
                 return None
             self.target = best
             self._challenger = None
             return self.target
-        current = scores.get(self.target, self._running[self.target].score(cfg))
+        current = scores.get(self.target, self._running[self.target].score(cfg, stamp))
         if not self._running[self.target].established and best != self.target and scores[best] > current:
             self.target = best  # the hold time protects an established target, not a tentative first guess
             self._challenger = None

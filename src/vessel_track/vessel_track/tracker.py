@@ -45,6 +45,8 @@ from vessel_calib.errors import DataError
 PROCESS_NOISE_MODELS = ("continuous_wna", "discrete_wna", "paper")
 ASSOCIATION_METHODS = ("global", "greedy")
 DISTANCE_METRICS = ("euclidean", "mahalanobis")
+MAX_PIXEL_COORDINATE = 1.0e5
+"""A box corner farther than this from the image origin, px, is not a detection of a camera image."""
 
 # Cost of a forbidden (gated-out) pair: large enough that the assignment prefers any admissible pairing,
 # finite so that linear_sum_assignment never reports the problem infeasible.
@@ -248,7 +250,8 @@ class TrackerCounters:
     frames: int = 0
     detections_in: int = 0
     detections_invalid: int = 0
-    """NaN/inf coordinates, or width/height below ``min_box_size_px`` (including negative), or a NaN score."""
+    """NaN/inf coordinates or beyond ``MAX_PIXEL_COORDINATE``, or width/height below ``min_box_size_px``
+    (including negative), or a NaN score."""
     detections_low_score: int = 0
     detections_associated: int = 0
     duplicates_suppressed: int = 0
@@ -591,6 +594,8 @@ class MultiTargetTracker:
         if len(boxes) == 0:
             return boxes, confs, np.zeros(0, dtype=np.int64)
         finite = np.isfinite(boxes).all(axis=1) & np.isfinite(confs)
+        with np.errstate(invalid="ignore"):
+            finite &= (np.abs(boxes) <= MAX_PIXEL_COORDINATE).all(axis=1)
         with np.errstate(invalid="ignore"):
             big_enough = ((boxes[:, 2] - boxes[:, 0]) >= cfg.min_box_size_px) & (
                 (boxes[:, 3] - boxes[:, 1]) >= cfg.min_box_size_px)
