@@ -7,6 +7,8 @@ import sys
 import types
 from pathlib import Path
 
+import pytest
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -16,13 +18,22 @@ class _Recorded:
         self.kwargs = kwargs
 
 
+class _Configuration:
+    def __init__(self, name):
+        self.name = name
+
+    def perform(self, context):
+        return context[self.name]
+
+
 def _stand_in_modules(monkeypatch):
     launch = types.ModuleType("launch")
     launch.LaunchDescription = _Recorded
     actions = types.ModuleType("launch.actions")
     actions.DeclareLaunchArgument = _Recorded
+    actions.OpaqueFunction = _Recorded
     substitutions = types.ModuleType("launch.substitutions")
-    substitutions.LaunchConfiguration = lambda name: f"$({name})"
+    substitutions.LaunchConfiguration = _Configuration
     launch_ros = types.ModuleType("launch_ros")
     launch_ros_actions = types.ModuleType("launch_ros.actions")
     launch_ros_actions.Node = _Recorded
@@ -31,25 +42,44 @@ def _stand_in_modules(monkeypatch):
         monkeypatch.setitem(sys.modules, name, module)
 
 
-def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(monkeypatch):
-    from vessel_track.graph import GRAPH_NODES
-
+def _load_graph_launch(monkeypatch):
     _stand_in_modules(monkeypatch)
     path = REPO_ROOT / "src/vessel_track/launch/vessel_graph.launch.py"
     spec = importlib.util.spec_from_file_location("vessel_graph_launch", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    description = module.generate_launch_description()
-    entities = description.args[0]
-    nodes = [e for e in entities if "executable" in e.kwargs]
-    declared = {e.args[0] for e in entities if "executable" not in e.kwargs}
+    return module
+
+
+def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(monkeypatch):
+    """Stand-ins; test_launch_graph.py runs the real ros2 launch where it is installed."""
+    from vessel_track.graph import GRAPH_NODES
+
+    module = _load_graph_launch(monkeypatch)
+    entities = module.generate_launch_description().args[0]
+    declared = {e.args[0] for e in entities if e.args}
+    assert {"params_file", "calib_file", "source", "rate", "use_sim_time", "respawn", "managed"} <= declared
+    context = {"params_file": str(REPO_ROOT / "config/aitas.yaml"), "calib_file": str(REPO_ROOT /
+               "config/aitas_camera.yaml"), "source": "bags/video_13", "rate": "4", "use_sim_time": "auto",
+               "respawn": "false", "managed": "false"}
+    nodes = module._nodes(context)
     assert [(n.kwargs["package"], n.kwargs["executable"]) for n in nodes] == [
         (g.package, g.executable) for g in GRAPH_NODES
     ]
-    assert {"params_file", "calib_file", "source", "rate", "use_sim_time"} <= declared
     for node in nodes:
-        parameters = node.kwargs["parameters"]
-        assert parameters[:2] == ["$(params_file)", "$(calib_file)"]
+        assert node.kwargs["parameters"] == [context["params_file"], context["calib_file"]]
+        # The per-run values are -p assignments, which beat the node's own block of the parameter file.
+        assert node.kwargs["ros_arguments"][:2] == ["-p", "use_sim_time:=true"]  # a recording: its /clock
+    camera = nodes[0].kwargs["ros_arguments"]
+    assert camera[2:] == ["-p", "source:=bags/video_13", "-p", "rate:=4.0"]
+
+
+def test_a_mistyped_parameter_file_stops_the_graph_launch(monkeypatch):
+    module = _load_graph_launch(monkeypatch)
+    context = {"params_file": "config/aitas_typo.yaml", "calib_file": "config/aitas_camera.yaml", "source": "",
+               "rate": "1.0", "use_sim_time": "auto", "respawn": "false", "managed": "false"}
+    with pytest.raises(RuntimeError, match="aitas_typo.yaml is not a file"):
+        module._nodes(context)
 
 
 def test_every_launch_file_compiles():

@@ -82,6 +82,8 @@ def _node_arguments(package: str, executable: str, tmp_path: Path) -> list[str]:
         return ["--ros-args", "-p", f"output:={tmp_path / 'recording'}"]
     if (package, executable) == ("vessel_calib", "calibrate"):
         return ["--ros-args", "-p", f"out:={tmp_path / 'camera.yaml'}"]
+    if executable in ("detector", "fuser", "gps_publisher"):  # nodes that read the camera model
+        return ["--ros-args", "--params-file", str(REPO_ROOT / "config" / "aitas_camera.yaml")]
     return ["--ros-args"]
 
 
@@ -132,3 +134,15 @@ def test_node_starts_and_stops_cleanly_on_sigint(package, executable, ros_env, r
     text = "".join(output)
     assert "Traceback" not in text, text
     assert process.returncode == 0, f"exit {process.returncode}:\n{text}"
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(("package", "executable"), [e for e in EXECUTABLES if e not in TOOLS_NOT_NODES])
+@pytest.mark.parametrize("flag", ["-h", "--help"])
+def test_help_prints_usage_and_starts_nothing(package, executable, flag, ros_env, tmp_path):
+    """`recorder -h` used to start recording a bag into the current folder; every node ran on -h."""
+    path = INSTALL_DIR / package / "lib" / package / executable
+    done = subprocess.run([str(path), flag], env=ros_env, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith(f"usage: {executable}")  # calibrate is an argparse tool: no --ros-args
+    assert "Traceback" not in done.stderr and list(tmp_path.iterdir()) == []

@@ -24,6 +24,7 @@ setup(
         "console_scripts": [
             "camera = vessel_detect.camera_node:main",
             "detector = vessel_detect.detector_node:main",
+            "detector_managed = vessel_detect.detector_node:main_managed",
             "bag_build = vessel_detect.bag_build:main",
             "recorder = vessel_detect.recorder_node:main",
             "replay_detector = vessel_detect.replay_detector_node:main",

@@ -75,7 +75,8 @@ def test_pairs_with_times_and_gpx(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("case, match", [
-    ("few", "at least 4"),
+    ("few", "at least 5"),
+    ("four", "passes through them exactly"),
     ("nan", "pair 1"),
     ("dup", "same screen point"),
     ("collinear", "collinear"),
@@ -91,6 +92,8 @@ def test_bad_input_one_line_error_and_no_file(tmp_path, capsys, case, match):
     path = tmp_path / "pairs.csv"
     if case == "few":
         write_pairs(path, screen[:3], gps[:3])
+    elif case == "four":  # reported 0.00 px and 0.00 m with no warning
+        write_pairs(path, screen[:4], gps[:4])
     elif case == "nan":
         screen[1, 0] = np.nan
         write_pairs(path, screen, gps)
@@ -281,3 +284,16 @@ def test_water_level_with_a_pairs_csv(tmp_path, capsys):
     status, _, err = run_cli(["--pairs-csv", pairs, *CAM_ARGS, "--water-level", short, "--out",
                               tmp_path / "short.yaml", "--no-picture"], capsys)
     assert status == 2 and "outside the water-level file" in err and not (tmp_path / "short.yaml").exists()
+
+
+def test_a_fit_with_few_pairs_warns_and_gives_a_leave_one_out_figure(tmp_path, capsys):
+    """6 pairs leave 3 degrees of freedom: the in-sample error understates, the held-out one does not."""
+    screen, gps = synthetic_pairs(pinhole_camera(), 6, seed=5)
+    screen = screen + np.random.default_rng(5).normal(0.0, 2.0, screen.shape)  # label noise
+    path = tmp_path / "pairs.csv"
+    write_pairs(path, screen, gps)
+    out = tmp_path / "camera.yaml"
+    status, stdout, err = run_cli(["--pairs-csv", str(path), *CAM_ARGS, "--out", str(out), "--no-picture"], capsys)
+    assert status == 0, err
+    assert "warning: only 6 pairs, 3 degree(s) of freedom left" in stdout
+    assert "each pair back-projected by a fit of the others: median" in stdout

@@ -339,7 +339,15 @@ def run(args) -> int:
     import numpy as np
 
     from vessel_calib import geodesy
-    from vessel_calib.calibration import calibrate, evaluate, study_draws
+    from vessel_calib.calibration import (
+        FEW_PAIRS,
+        MIN_PAIRS_TO_WRITE,
+        calibrate,
+        degrees_of_freedom,
+        evaluate,
+        leave_one_pair_out_errors,
+        study_draws,
+    )
     from vessel_calib.dataset import Dataset, default_data_dir, parse_videos, repo_root
 
     ds = None
@@ -385,8 +393,9 @@ def run(args) -> int:
     available = len(screen)
     all_screen, all_gps = screen, gps
     if args.pairs is not None:
-        if args.pairs < 4:
-            raise CalibrationError(f"--pairs must be at least 4, got {args.pairs}")
+        if args.pairs < MIN_PAIRS_TO_WRITE:
+            raise CalibrationError(f"--pairs must be at least {MIN_PAIRS_TO_WRITE}, got {args.pairs}: 4 pairs fit the "
+                                   "homography exactly, so no error of the calibration could be measured")
         if args.pairs > len(screen):
             raise CalibrationError(f"--pairs {args.pairs} but only {len(screen)} pairs are available")
         idx = np.sort(np.random.default_rng(args.seed).choice(len(screen), size=args.pairs, replace=False))
@@ -409,6 +418,11 @@ def run(args) -> int:
                                    f"{water_level.source} ({_utc(water_level.start_s)} to {_utc(water_level.end_s)});"
                                    " extend the file to cover them")
         source += f", water level from {args.water_level}"
+    if len(screen) < MIN_PAIRS_TO_WRITE:
+        raise CalibrationError(
+            f"{len(screen)} pairs: a homography fitted to 4 pairs passes through them exactly (0 px, 0 m whatever "
+            f"the labels), so nothing says how wrong it is; give at least {MIN_PAIRS_TO_WRITE} pairs (more than 8 "
+            "for a calibration to rely on)")
     result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor=args.box_anchor,
                        water_levels=levels)
 
@@ -416,6 +430,16 @@ def run(args) -> int:
     for note in notes:
         print(f"  note: {note}")
     print("\n".join(result.report_lines()), flush=True)
+    if len(screen) < FEW_PAIRS:
+        dof = degrees_of_freedom(len(screen), result.options.fit_k1 and result.options.k1_fixed is None)
+        held_out = leave_one_pair_out_errors(screen, gps, camera_lat, camera_lon, image_size, center, options,
+                                             args.box_anchor)
+        finite = held_out[np.isfinite(held_out)]
+        figure = (f"median {np.median(finite):.2f} m, max {np.max(finite):.2f} m over {finite.size} pairs"
+                  if finite.size else "no pair could be held out")
+        print(f"  warning: only {len(screen)} pairs, {dof} degree(s) of freedom left: the fit's own errors above "
+              f"understate; each pair back-projected by a fit of the others: {figure}. Label more pairs.",
+              flush=True)
     if water_level is not None:
         geometry = result.model.pinhole()
         print(f"  water level {result.model.water_level_m:.3f} m (pairs {levels.min():.3f} to {levels.max():.3f} m); "

@@ -548,6 +548,39 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
         figures=figures, k1_scan=(k1_values, losses), scan_k1=k1_scan_best, nfev=nfev)
 
 
+#: Fewer pairs than this get a leave-one-pair-out figure in the calibration tool's report.
+FEW_PAIRS = 8
+#: The calibration tool writes no file from fewer pairs: 4 fix a homography exactly (no error can be measured).
+MIN_PAIRS_TO_WRITE = 5
+
+
+def degrees_of_freedom(n_pairs: int, fits_k1: bool) -> int:
+    """Equations left over by a fit of H (8 unknowns) and, when fitted, K1 to ``n_pairs`` pairs."""
+    return 2 * n_pairs - 8 - int(fits_k1)
+
+
+def leave_one_pair_out_errors(screen, gps, camera_lat: float, camera_lon: float, image_size=(1280, 720),
+                              center=None, options: FitOptions | None = None,
+                              box_anchor: float = PAPER_BOX_ANCHOR) -> np.ndarray:
+    """Back-projection error (m) of each pair under a fit of the others: what a few pairs' fit is worth.
+
+    With few pairs the in-sample error says little (4 pairs fit H exactly: 0 m whatever the labels); this is
+    the figure that does. NaN where the fit without that pair fails or the pair lands on its horizon.
+    """
+    screen = np.asarray(screen, dtype=float).reshape(-1, 2)
+    gps = np.asarray(gps, dtype=float).reshape(-1, 2)
+    errors = np.full(len(screen), np.nan)
+    for i in range(len(screen)):
+        keep = np.arange(len(screen)) != i
+        try:
+            model = calibrate(screen[keep], gps[keep], camera_lat, camera_lon, image_size, center, options,
+                              box_anchor).model
+        except CalibrationError:
+            continue
+        errors[i] = _backproj_errors(model, screen[i:i + 1], gps[i:i + 1])[0]
+    return errors
+
+
 #: Rounds of (camera height from H, pairs moved to the reference water level, refit).
 WATER_LEVEL_ROUNDS = 3
 

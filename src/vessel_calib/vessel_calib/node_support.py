@@ -77,6 +77,47 @@ def sec_to_stamp(seconds: float) -> Time:
     return Time(sec=total_ns // 1_000_000_000, nanosec=total_ns % 1_000_000_000)
 
 
+_command_line: list[str] = []
+"""The arguments ``run_node`` started the node with (their ``-p`` assignments win over parameter files)."""
+
+
+def command_line_parameters(args: Sequence[str], node_name: str) -> dict[str, str]:
+    """``name -> value text`` of the ``-p name:=value`` / ``--param name:=value`` assignments for ``node_name``.
+
+    Only the ``--ros-args`` parts count (up to ``--`` or the next ``--ros-args``); ``-p other_node:name:=value``
+    is for another node. rcl files these under ``/**``, which a node's own block in a parameter file beats;
+    a ROS user who types ``-p`` expects it to win, so ``declare_parameter`` applies them last.
+    """
+    found: dict[str, str] = {}
+    inside = False
+    args = list(args)
+    for i, arg in enumerate(args):
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif inside and arg in ("-p", "--param") and i + 1 < len(args) and ":=" in args[i + 1]:
+            name, value = args[i + 1].split(":=", 1)
+            target, _, bare = name.rpartition(":")
+            if target and target.lstrip("/") != node_name:
+                continue
+            found[bare] = value
+    return found
+
+
+def _command_line_value(name: str, text: str) -> Any:
+    """The value of ``-p name:=text`` as rcl reads it (YAML), as a type ROS parameters hold."""
+    import yaml
+
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        value = text
+    if value is None:
+        raise VesselError(f"-p {name}:={text}: no value; give one, e.g. -p {name}:=1.0")
+    return value
+
+
 def declare_parameter(
     node: Node,
     name: str,
@@ -90,8 +131,22 @@ def declare_parameter(
 ) -> Any:
     """Declare one parameter with a descriptor and return its value.
 
-    Ranges are enforced by ROS when the parameter is set at start (``--params-file``, ``-p``) or later.
+    Ranges are enforced by ROS when the parameter is set at start (``--params-file``, ``-p``) or later; a value
+    out of range or of the wrong type stops the node with one line naming the parameter. A ``-p`` on the command
+    line wins over the parameter files, even over the node's own block in them.
     """
+    from rclpy.exceptions import ParameterException
+    from rclpy.parameter import Parameter
+
+    from vessel_calib.errors import DataError
+
+    given = command_line_parameters(_command_line, node.get_name()).get(name)
+    overrides = getattr(node, "_parameter_overrides", None)
+    if given is not None and overrides is not None:
+        try:
+            overrides[name] = Parameter(name, value=_command_line_value(name, given))
+        except (TypeError, ValueError) as error:
+            raise DataError(f"-p {name}:={given}: {error}") from None
     descriptor = ParameterDescriptor(
         description=description,
         read_only=read_only,
@@ -105,7 +160,37 @@ def declare_parameter(
         descriptor.integer_range = [
             IntegerRange(from_value=int(int_range[0]), to_value=int(int_range[1]), step=0)
         ]
-    return node.declare_parameter(name, default, descriptor).value
+    try:
+        return node.declare_parameter(name, default, descriptor).value
+    except (ParameterException, TypeError, ValueError) as error:
+        constraint = ""
+        if float_range is not None or int_range is not None:
+            low, high = float_range if float_range is not None else int_range
+            constraint = f" (allowed: {low:g} to {high:g})"
+        raise DataError(f"parameter {name} of {node.get_name()}: {error}{constraint}; fix the value in the "
+                        f"parameter file or on the command line (default {default!r})") from None
+
+
+def _apply_command_line_sim_time(node: Node, args: Sequence[str]) -> None:
+    """``-p use_sim_time:=...`` wins over the parameter files too (rclpy declares it before any of ours)."""
+    from rclpy.parameter import Parameter
+
+    from vessel_calib.errors import DataError
+
+    given = command_line_parameters(args, node.get_name()).get("use_sim_time")
+    if given is None:
+        return
+    value = _command_line_value("use_sim_time", given)
+    if not isinstance(value, bool):
+        raise DataError(f"-p use_sim_time:={given}: use true or false")
+    if node.get_parameter("use_sim_time").value != value:
+        node.set_parameters([Parameter("use_sim_time", value=value)])
+
+
+def unknown_command_line_parameters(node: Node, args: Sequence[str]) -> list[str]:
+    """``-p`` names given for ``node`` that it does not declare (a misspelling would otherwise pass silently)."""
+    names = command_line_parameters(args, node.get_name())
+    return [name for name in names if not node.has_parameter(name) and not name.startswith("qos_overrides.")]
 
 
 CAMERA_PARAMETER_DESCRIPTIONS: dict[str, str] = {
@@ -143,20 +228,62 @@ DEFAULT_CAMERA_PARAMETERS: dict[str, Any] = {
 """The challenge camera, the paper's calibration with its sign typo corrected (see aitas/camera.json)."""
 
 
+REQUIRED_CAMERA_KEYS = ("camera_lat", "camera_lon", "image_width", "image_height", "H", "K1", "center_x",
+                        "center_y", "box_anchor")
+"""The keys a calibration file must give: without any of them the node would run on another camera's values."""
+
+BUILTIN_CALIBRATION = "builtin_calibration"
+
+
+def missing_calibration_keys(given: set[str], prefix: str = "camera") -> list[str]:
+    """``REQUIRED_CAMERA_KEYS`` (as ``prefix.key``) that are not among the ``given`` parameter names."""
+    return [f"{prefix}.{key}" for key in REQUIRED_CAMERA_KEYS if f"{prefix}.{key}" not in given]
+
+
 def declare_camera_model(node: Node, prefix: str = "camera"):
     """Declare the ``camera.*`` calibration parameters and build the camera model from them.
 
-    Defaults are the paper's corrected calibration of the challenge camera, so nodes work on the challenge
-    data without a calibration file. A calibration that cannot be used raises ``CalibrationError`` naming the
-    key; nodes let it stop them at start (``run_node`` prints it as one line).
+    A calibration must be given (``--params-file`` of the file ``calibrate`` writes), with every key of
+    ``REQUIRED_CAMERA_KEYS``: a file missing ``H`` must not run on another camera's homography. The paper's
+    corrected calibration of the challenge camera is used only when asked for (``camera.builtin_calibration:
+    true``, for tests and a first look at the challenge data). A calibration that cannot be used raises
+    ``CalibrationError`` naming the key; nodes let it stop them at start (``run_node`` prints it as one line).
     """
     from vessel_calib.camera_model import CameraModel
+    from vessel_calib.errors import CalibrationError
 
+    builtin = declare_parameter(
+        node, f"{prefix}.{BUILTIN_CALIBRATION}", False,
+        "Use the paper's calibration of the challenge camera (corrected) when no calibration file is given; for "
+        "tests and a first look at the challenge data only.", read_only=True)
+    given = {name for name in getattr(node, "_parameter_overrides", {}) if name.startswith(f"{prefix}.")}
+    missing = missing_calibration_keys(given, prefix)
+    if missing and not builtin:
+        if len(missing) == len(REQUIRED_CAMERA_KEYS):
+            raise CalibrationError(
+                f"{node.get_name()}: no calibration given: pass the calibration file `calibrate` writes, e.g. "
+                f"--params-file config/aitas_camera.yaml (or -p {prefix}.{BUILTIN_CALIBRATION}:=true for the "
+                "paper's calibration of the challenge camera)")
+        raise CalibrationError(
+            f"{node.get_name()}: the calibration lacks {', '.join(missing)}: write it again with `calibrate` (a "
+            f"node never runs on another camera's values for missing keys)")
     values = {}
     for key, default in DEFAULT_CAMERA_PARAMETERS.items():
         description = CAMERA_PARAMETER_DESCRIPTIONS.get(key, f"Camera calibration value '{key}'.")
         values[key] = declare_parameter(node, f"{prefix}.{key}", default, description, read_only=True)
     return CameraModel.from_params(values)
+
+
+def steady_timer(node: Node, period_s: float, callback: Callable[[], None]):
+    """A timer on the steady clock, whatever ``use_sim_time`` says.
+
+    Housekeeping (reports, discovery, pacing) must run in real time: under ``use_sim_time`` the node clock
+    stands still until a replay's first ``/clock`` (and the graph waits for these reports before it starts the
+    camera), then jumps with it.
+    """
+    from rclpy.clock import Clock, ClockType
+
+    return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
 #: Diagnostics key prefix of ``NodeHealth.watch_subscribers``: ``matched_subscribers./vessel/tracks`` = "3".
@@ -192,7 +319,7 @@ class NodeHealth:
         self._lock = threading.Lock()
         self._watched: list = []
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._timer = node.create_timer(period_s, self.publish)
+        self._timer = steady_timer(node, period_s, self.publish)  # the reports carry the node's time
 
     def watch_subscribers(self, *publishers) -> None:
         """Report how many subscriptions each publisher has matched (``matched_subscribers.<topic>``).
@@ -284,6 +411,12 @@ def run_node(
     Returns the process exit status: 0 after SIGINT or a node that finished its work, 2 when the node could
     not start because of a ``VesselError`` (printed as one ``error:`` line naming the problem and the fix).
     """
+    if wants_help(args if args is not None else sys.argv):
+        try:
+            print(node_help(node_factory, args if args is not None else sys.argv))
+        except BrokenPipeError:  # `EXE --help | head`
+            pass
+        return 0
     try:
         rclpy.init(args=args)
     except RuntimeError as error:  # rclpy's RCLError: malformed --ros-args
@@ -292,8 +425,21 @@ def run_node(
         return 2
     node = None
     status = 0
+    _command_line[:] = list(args if args is not None else sys.argv)
     try:
         node = node_factory()
+        _apply_command_line_sim_time(node, _command_line)
+        unknown = unknown_command_line_parameters(node, _command_line)
+        if unknown:
+            import difflib
+
+            declared = sorted(node._parameters)
+            hints = []
+            for name in unknown:
+                close = difflib.get_close_matches(name, declared, n=1)
+                hints.append(f"{name}" + (f" (did you mean {close[0]}?)" if close else ""))
+            raise VesselError(f"{node.get_name()} has no parameter {', '.join(hints)}: `ros2 param list` names "
+                              "them all; fix the -p on the command line")
         executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
         executor.add_node(node)
         while rclpy.ok() and not getattr(node, "finished", False):
@@ -318,6 +464,35 @@ def run_node(
             rclpy.try_shutdown()
         _ignore_late_sigint()  # again: shutting rclpy down puts back the handler it replaced at init
     return status
+
+
+def wants_help(args: Sequence[str]) -> bool:
+    """``-h`` / ``--help`` among the arguments that are not ROS arguments (a node must not start then)."""
+    inside = False
+    for arg in list(args)[1:]:
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif not inside and arg in ("-h", "--help"):
+            return True
+    return False
+
+
+def node_help(node_factory: Callable[[], Node], args: Sequence[str]) -> str:
+    """What ``EXE --help`` prints: the node's module description and how to set its parameters."""
+    import importlib
+    import os
+
+    module = importlib.import_module(getattr(node_factory, "__module__", "")) if hasattr(
+        node_factory, "__module__") else None
+    text = (module.__doc__ if module is not None and module.__doc__ else node_factory.__doc__ or "").strip()
+    exe = os.path.basename(list(args)[0]) if args else "node"
+    return (f"usage: {exe} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] [-r FROM:=TO] ...]\n\n{text}\n\n"
+            "Parameters: every one is declared with a description and range; with the node running, `ros2 param "
+            "list` / `ros2 param describe` show them, and config/parts/*.yaml of the repository lists each node's "
+            "defaults. A -p on the command line wins over --params-file; an unknown name or a value out of range "
+            "stops the node with one line.")
 
 
 def main_for(node_class: type[Node], threads: int = 1) -> Callable[[], None]:

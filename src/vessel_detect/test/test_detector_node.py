@@ -16,6 +16,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.data]
 REPO = Path(__file__).resolve().parents[3]
 DETECTOR_EXE = REPO / "ros2_ws/install/vessel_detect/lib/vessel_detect/detector"
 PARAMS_FILE = REPO / "config/parts/detector.yaml"
+CALIBRATION = REPO / "config/aitas_camera.yaml"
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: source ros2_ws/install/setup.bash")
 pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
@@ -119,6 +120,7 @@ def test_detector_node_detects_on_a_real_frame_counts_bad_frames_and_keeps_runni
 ):
     jpeg = (data_dir / "frames" / FRAME[0] / FRAME[1]).read_bytes()
     node = start_node("vessel_detect", "detector", "--ros-args", "--params-file", str(PARAMS_FILE),
+                      "--params-file", str(CALIBRATION),
                       "-p", f"model_path:={model_path}", "-p", "subscribe_raw:=true",
                       "-p", "publish_annotated:=true", "-p", "annotated_scale:=0.25")
     matched = probe.wait(lambda: probe.compressed.get_subscription_count() > 0
@@ -194,7 +196,8 @@ def test_detector_node_detects_on_a_real_frame_counts_bad_frames_and_keeps_runni
 
 def test_detector_node_refuses_to_start_without_its_model(ros_env, tmp_path):
     missing = tmp_path / "missing_model.onnx"
-    result = subprocess.run([str(DETECTOR_EXE), "--ros-args", "-p", f"model_path:={missing}"], env=ros_env,
+    result = subprocess.run([str(DETECTOR_EXE), "--ros-args", "--params-file", str(CALIBRATION), "-p",
+                             f"model_path:={missing}"], env=ros_env,
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert "error:" in result.stderr and "missing_model.onnx" in result.stderr
@@ -202,9 +205,82 @@ def test_detector_node_refuses_to_start_without_its_model(ros_env, tmp_path):
 
     corrupt = tmp_path / "corrupt.onnx"
     corrupt.write_bytes(b"not a model at all")
-    result = subprocess.run([str(DETECTOR_EXE), "--ros-args", "-p", f"model_path:={corrupt}",
+    result = subprocess.run([str(DETECTOR_EXE), "--ros-args", "--params-file", str(CALIBRATION), "-p",
+                             f"model_path:={corrupt}",
                              "-p", "model_sha256:=" + "ab" * 32], env=ros_env, capture_output=True, text=True,
                             timeout=120)
     assert result.returncode == 2
     assert "corrupt.onnx" in result.stderr and "ab" * 32 in result.stderr
     assert "Traceback" not in result.stderr + result.stdout
+
+
+def _change_state(probe, client, transition_id: int) -> bool:
+    from lifecycle_msgs.srv import ChangeState
+
+    request = ChangeState.Request()
+    request.transition.id = transition_id
+    future = client.call_async(request)
+    assert probe.wait(future.done, 60.0), "no answer to the transition"
+    return future.result().success
+
+
+def _state(probe, client) -> str:
+    from lifecycle_msgs.srv import GetState
+
+    future = client.call_async(GetState.Request())
+    assert probe.wait(future.done, 30.0)
+    return future.result().current_state.label
+
+
+def test_managed_detector_walks_the_whole_lifecycle(start_node, probe, data_dir, model_path, tmp_path):
+    """As ros2/demos lifecycle_py: every transition, and output only while active (the model loads on configure)."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    jpeg = (data_dir / "frames" / FRAME[0] / FRAME[1]).read_bytes()
+    node = start_node("vessel_detect", "detector_managed", "--ros-args", "--params-file", str(PARAMS_FILE),
+                      "--params-file", str(CALIBRATION), "-p", f"model_path:={model_path}",
+                      "-p", "image_qos:=reliable")
+    change = probe.node.create_client(ChangeState, "/detector/change_state")
+    get = probe.node.create_client(GetState, "/detector/get_state")
+    assert probe.wait(lambda: change.service_is_ready() and get.service_is_ready(), 60.0), node.output()
+    assert _state(probe, get) == "unconfigured"
+
+    def answered(sec: int, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            probe.compressed.publish(_compressed(jpeg, sec))
+            if probe.wait(lambda: probe.output_for(sec) is not None, 3.0):
+                return True
+        return False
+
+    assert _change_state(probe, change, Transition.TRANSITION_CONFIGURE) and _state(probe, get) == "inactive"
+    assert "detecting" not in node.output()  # configured, not yet taking images
+    assert not answered(1_601_494_100, 4.0), "an inactive detector published"
+    assert _change_state(probe, change, Transition.TRANSITION_ACTIVATE) and _state(probe, get) == "active"
+    assert answered(1_601_494_101, 60.0), f"the active detector did not answer:\n{node.output()}"
+    assert _change_state(probe, change, Transition.TRANSITION_DEACTIVATE) and _state(probe, get) == "inactive"
+    assert not answered(1_601_494_102, 4.0), "a deactivated detector published"
+    assert _change_state(probe, change, Transition.TRANSITION_CLEANUP) and _state(probe, get) == "unconfigured"
+    # Configured again from scratch (the model reloaded), active again, then shut down.
+    assert _change_state(probe, change, Transition.TRANSITION_CONFIGURE)
+    assert _change_state(probe, change, Transition.TRANSITION_ACTIVATE)
+    assert answered(1_601_494_103, 60.0), node.output()
+    assert _change_state(probe, change, Transition.TRANSITION_ACTIVE_SHUTDOWN) and _state(probe, get) == "finalized"
+    assert node.stop() == 0
+    assert "Traceback" not in node.log_path.read_text(errors="replace")
+
+
+def test_a_managed_detector_without_its_model_fails_to_configure_and_says_why(start_node, probe, tmp_path):
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    node = start_node("vessel_detect", "detector_managed", "--ros-args", "--params-file", str(CALIBRATION),
+                      "-p", f"model_path:={tmp_path / 'missing.onnx'}")
+    change = probe.node.create_client(ChangeState, "/detector/change_state")
+    get = probe.node.create_client(GetState, "/detector/get_state")
+    assert probe.wait(lambda: change.service_is_ready() and get.service_is_ready(), 60.0), node.output()
+    assert not _change_state(probe, change, Transition.TRANSITION_CONFIGURE)
+    assert _state(probe, get) == "unconfigured"
+    assert probe.wait(lambda: "missing.onnx" in node.output(), 10.0), node.output()
+    assert node.process.poll() is None and "Traceback" not in node.output()

@@ -235,3 +235,11 @@ def test_jpeg_problem():
     assert "end marker" in sources.jpeg_problem(good[: len(good) // 2])
     assert "start marker" in sources.jpeg_problem(b"\x89PNG" + good[4:])
     assert "bytes" in sources.jpeg_problem(b"\xff\xd8")
+    # Garbage inside, both markers intact: libjpeg patches it over (and says so), so only strict refuses it.
+    textured = sources.encode_jpeg(np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8))
+    corrupt = bytearray(textured)
+    start, size = 2 * len(textured) // 3, 400
+    corrupt[start:start + size] = np.random.default_rng(0).integers(0, 255, size, dtype=np.uint8).tobytes()
+    assert sources.jpeg_problem(bytes(corrupt)) is None
+    assert "corrupt JPEG data inside" in sources.jpeg_problem(bytes(corrupt), strict=True)
+    assert sources.jpeg_problem(textured, strict=True) is None

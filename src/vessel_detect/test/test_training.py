@@ -109,6 +109,24 @@ def test_augmentation_is_fixed_by_the_seed_and_keeps_boxes_inside():
         assert len(sample.boxes) == len(sample.classes)
 
 
+def test_close_ups_show_the_vessel_larger_than_any_ordinary_crop_wherever_it_is():
+    """The band reaches the image bottom, where a vessel passing close is several times larger than in training."""
+    image, labels = _frame_with_boat(None)
+    labels.boxes[0] = [300.0, 300, 340, 315]  # low in the band: near the camera
+    ordinary = AugmentSettings(crop_wh=(256, 128), zoom_target=0.0)
+    close_up = AugmentSettings(crop_wh=(256, 128), zoom_target=1.0, zoom_range=(2.0, 3.0))
+    widest = 0.0
+    for seed in range(20):
+        sample = random_sample(image, labels, 150.0, np.random.default_rng(seed), ordinary)
+        vessel = sample.boxes[sample.classes == 0]
+        widest = max([widest, *(vessel[:, 2] - vessel[:, 0])])
+        zoomed = random_sample(image, labels, 150.0, np.random.default_rng(seed), close_up)
+        vessel = zoomed.boxes[zoomed.classes == 0]
+        assert len(vessel) == 1, "the close-up lost the vessel"
+        assert 2.0 * 40 - 1e-6 <= vessel[0, 2] - vessel[0, 0] <= 3.0 * 40 + 1e-6
+    assert widest <= 1.6 * 40 + 1e-6
+
+
 # --------------------------------------------------------------------------------- PyTorch from here on
 torch = pytest.importorskip("torch", reason="the training extra is not installed: ./vessel setup --train")
 pytest.importorskip("onnx2torch", reason="the training extra is not installed: ./vessel setup --train")

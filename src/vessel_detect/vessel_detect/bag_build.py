@@ -222,7 +222,7 @@ def _load_jpeg(path: Path) -> Callable[[], tuple[bytes | None, str | None]]:
             data = path.read_bytes()
         except OSError as exc:
             return None, f"cannot read {path} ({exc.strerror or exc})"
-        reason = jpeg_problem(data)
+        reason = jpeg_problem(data, strict=True)
         if reason is not None:
             return None, f"{path} is unreadable ({reason})"
         return data, None

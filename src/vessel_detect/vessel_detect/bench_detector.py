@@ -306,7 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--calib", default=repo_file("config/aitas_camera.yaml"),
                         help="calibration YAML (default config/aitas_camera.yaml)")
     parser.add_argument("--detector-params", default=None,
-                        help="loaded on top of --params and --calib for the default, e.g. config/detector_trained.yaml")
+                        help="loaded on top of --params and --calib for the default, e.g. config/detector_coco.yaml")
     parser.add_argument("--baseline-params", default=repo_file("config/detector_coco.yaml"),
                         help="loaded on top of --params for the baseline (default config/detector_coco.yaml; '' "
                              "for none)")

@@ -26,6 +26,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
+from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
 
@@ -38,6 +39,7 @@ from vessel_calib.node_support import (
     image_qos_profile,
     main_for,
     reliable_qos,
+    steady_timer,
 )
 from vessel_detect.detector import Detections, annotate
 from vessel_detect.detector_params import ALL_PARAMS, NODE_NAME, build_detector
@@ -84,11 +86,15 @@ def detections_to_msg(detections: Detections, header, target_class: str = "") ->
     return array
 
 
-class DetectorNode(Node):
-    """Run the vessel detector on the newest camera image; see the module docstring."""
+class _DetectorPhases:
+    """The detector node's work, phase by phase, shared by the plain node and the managed (lifecycle) one.
 
-    def __init__(self) -> None:
-        super().__init__(NODE_NAME)
+    ``_declare`` (parameters, calibration, health reports), ``_configure`` (the model loaded, the output
+    publishers), ``_activate`` (image subscriptions and the worker thread), ``_deactivate`` (both stopped) and
+    ``_cleanup`` (the model and publishers released).
+    """
+
+    def _declare(self) -> None:
         self.values = {}
         for spec in ALL_PARAMS:
             kwargs = {}
@@ -104,46 +110,57 @@ class DetectorNode(Node):
                 raise VesselError(
                     f"detector parameter '{spec.name}': {error} (expected a value like {spec.default!r})"
                 ) from None
-        camera = declare_camera_model(self)
-        self.detector = build_detector(self.values, camera)
-        if self.detector.horizon_y is None:
-            self.get_logger().warning("the calibration gives no horizon in the image: processing the whole height")
+        self.camera = declare_camera_model(self)
+        values = self.values
+        if not (values["subscribe_compressed"] or values["subscribe_raw"]):
+            raise VesselError("detector subscribes to nothing: set subscribe_compressed or subscribe_raw to true")
+        self.detector = None
+        self.detections_pub = None
+        self.annotated_pub = None
+        self._image_subscriptions = []
+        self._worker = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
-
         self.health = NodeHealth(self, hardware_id="detector")
         for kind in PROBLEM_KINDS + EVENT_KINDS:
             self.health.count(kind, 0)
         for key in ("latency_ms_last", "latency_ms_p50", "latency_ms_p95", "input_to_output_ms_p50",
                     "frames_per_s", "windows_per_frame", "detections_last"):
             self.health.set_value(key, float("nan"))
-        self.health.set_value("windows_per_frame", len(self.detector.windows(self.detector.reference_wh)))
-
         self._lock = threading.Condition()
         self._latest: tuple[str, object, float] | None = None
         self._stop = False
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._end_to_end: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._processed_times: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        steady_timer(self, 1.0, self._report)
 
+    def _make_publisher(self, message_type, topic: str, qos):
+        return self.create_publisher(message_type, topic, qos)
+
+    def _configure(self) -> None:
         values = self.values
-        self.detections_pub = self.create_publisher(
-            Detection2DArray, values["detections_topic"], reliable_qos(int(values["detections_qos_depth"]))
-        )
+        self.detector = build_detector(values, self.camera)
+        if self.detector.horizon_y is None:
+            self.get_logger().warning("the calibration gives no horizon in the image: processing the whole height")
+        self.health.set_value("windows_per_frame", len(self.detector.windows(self.detector.reference_wh)))
+        self.detections_pub = self._make_publisher(
+            Detection2DArray, values["detections_topic"], reliable_qos(int(values["detections_qos_depth"])))
         self.health.watch_subscribers(self.detections_pub)
-        self.annotated_pub = None
         if values["publish_annotated"]:
-            self.annotated_pub = self.create_publisher(Image, values["annotated_topic"], SENSOR_DATA_QOS)
+            self.annotated_pub = self._make_publisher(Image, values["annotated_topic"], SENSOR_DATA_QOS)
+
+    def _activate(self) -> None:
+        values = self.values
         qos = image_qos_profile(values["image_qos"])
-        self._image_subscriptions = []
         if values["subscribe_compressed"]:
             self._image_subscriptions.append(self.create_subscription(
                 CompressedImage, values["compressed_topic"], lambda m: self._on_image("compressed", m), qos))
         if values["subscribe_raw"]:
             self._image_subscriptions.append(self.create_subscription(
                 Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
-        if not self._image_subscriptions:
-            raise VesselError("detector subscribes to nothing: set subscribe_compressed or subscribe_raw to true")
-        self.create_timer(1.0, self._report)
+        with self._lock:
+            self._stop = False
+            self._latest = None
         self._worker = threading.Thread(target=self._work, name="detector-worker", daemon=True)
         self._worker.start()
         topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
@@ -156,8 +173,24 @@ class DetectorNode(Node):
             f"{config.score_threshold}) on {', '.join(topics)} -> {values['detections_topic']}"
         )
 
+    def _deactivate(self) -> None:
+        for subscription in self._image_subscriptions:
+            self.destroy_subscription(subscription)
+        self._image_subscriptions = []
+        self.close()
+
+    def _cleanup(self) -> None:
+        for publisher in (self.detections_pub, self.annotated_pub):
+            if publisher is not None:
+                self.destroy_publisher(publisher)
+        self.detections_pub = self.annotated_pub = None
+        self.detector = None  # the ONNX session and its memory go with it
+
+
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         """Thresholds may change while running; everything else is read-only (declared so)."""
+        if self.detector is None:  # not configured yet (managed node): the values apply when it is
+            return SetParametersResult(successful=True)
         config = self.detector.config
         updates = {}
         for parameter in parameters:
@@ -258,15 +291,75 @@ class DetectorNode(Node):
             self.health.set_status(DiagnosticStatus.OK, "running")
 
     def close(self) -> None:
-        """Stop the worker thread (called by run_node at shutdown)."""
+        """Stop the worker thread (called by run_node at shutdown, and when a managed node deactivates)."""
         with self._lock:
             self._stop = True
             self._lock.notify_all()
-        if self._worker.is_alive():
+        if self._worker is not None and self._worker.is_alive():
             self._worker.join(timeout=5.0)
+        self._worker = None
+
+
+class DetectorNode(_DetectorPhases, Node):
+    """Run the vessel detector on the newest camera image; see the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self._declare()
+        self._configure()
+        self._activate()
+
+
+class ManagedDetectorNode(_DetectorPhases, LifecycleNode):
+    """The detector as a managed (lifecycle) node: ``ros2 run vessel_detect detector_managed``.
+
+    unconfigured -> configure (the model is loaded, publishers made) -> inactive -> activate (images are taken
+    and detections published) -> active; deactivate stops taking images, cleanup releases the model, shutdown
+    from any state. Parameters are declared at start, so ``ros2 param`` works in every state. A configure that
+    fails (no model) logs why and leaves the node unconfigured.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self._declare()
+
+    def _make_publisher(self, message_type, topic: str, qos):
+        return self.create_lifecycle_publisher(message_type, topic, qos)
+
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        """Load the model and make the publishers; FAILURE (logged) leaves the node unconfigured."""
+        try:
+            self._configure()
+        except VesselError as error:
+            self.get_logger().error(f"configure failed: {error}")
+            self._cleanup()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        """Subscribe to the images and start the worker; the publishers start publishing."""
+        self._activate()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        """Stop taking images and stop the worker (the model stays loaded)."""
+        self._deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        """Release the model and the publishers."""
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        """Stop and release everything, from any state."""
+        self._deactivate()
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
 
 
 main = main_for(DetectorNode)
+main_managed = main_for(ManagedDetectorNode)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,9 @@ It is a `ros2 bag record` for installs without the rosbag2 tools, writing the sa
 subscribed once a publisher appears, with QoS adapted to what the publishers offer (so best-effort and latched
 topics are recorded too) and the type taken from the parameter or from the graph. Messages are stored as
 received (serialised CDR, no decode); the log time is the message's header stamp where it has one (so a replayed
-bag lines up with its source), else the receive time on the node's clock (sim time under `use_sim_time`). On
+bag lines up with its source), else the receive time on the node's clock (sim time under `use_sim_time`). A
+message with no time yet (an unset stamp before the first `/clock` of a replay) is written at the next known
+time, never at 1970, so a recording of a replay spans the replay's time only. On
 SIGINT/SIGTERM the bag is closed properly: index, summary and metadata.yaml written, nothing received is lost.
 
     ros2 run vessel_detect recorder --ros-args -p output:=out/run1 \
@@ -24,7 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vessel_calib.errors import DataError, VesselError
-from vessel_calib.node_support import NodeHealth, declare_parameter, main_for
+from vessel_calib.node_support import NodeHealth, declare_parameter, main_for, steady_timer
 from vessel_detect import bag_io
 from vessel_detect.ros_messages import message_class
 
@@ -119,7 +121,9 @@ class RecorderNode(Node):
         self.finished = False
         self._closed = False
         self._last_progress = time.monotonic()
-        self.create_timer(self.discovery_period_s, self._discover)
+        self._last_log_ns = 0
+        self._untimed: list[tuple[TopicPlan, bytes]] = []
+        steady_timer(self, self.discovery_period_s, self._discover)
         self._discover()
         self.get_logger().info(
             f"recording {', '.join(p.name for p in self.plans)} into {self.output} (SIGINT to stop and close)"
@@ -175,6 +179,19 @@ class RecorderNode(Node):
         log_ns = header_stamp_ns(cdr) if plan.has_header else None
         if log_ns is None:
             log_ns = self.get_clock().now().nanoseconds
+        if log_ns <= 0:  # no time yet: sim time before the replay's first /clock
+            self.health.count("untimed_messages")
+            if self._last_log_ns <= 0:
+                self._untimed.append((plan, cdr))
+                return
+            log_ns = self._last_log_ns
+        self._last_log_ns = max(self._last_log_ns, log_ns)
+        for held_plan, held in self._untimed:
+            self._write(held_plan, held, log_ns)
+        self._untimed.clear()
+        self._write(plan, cdr, log_ns)
+
+    def _write(self, plan: TopicPlan, cdr: bytes, log_ns: int) -> None:
         try:
             self.writer.write_cdr(plan.name, cdr, log_ns)
         except VesselError as error:
@@ -191,6 +208,9 @@ class RecorderNode(Node):
         if self._closed:
             return
         self._closed = True
+        for plan, cdr in self._untimed:  # nothing ever gave them a time: the wall clock's
+            self._write(plan, cdr, time.time_ns())
+        self._untimed.clear()
         path = self.writer.close()
         counts = ", ".join(f"{p.name} {p.count}" for p in self.plans if p.count)
         never = [p.name for p in self.plans if not p.subscribed]

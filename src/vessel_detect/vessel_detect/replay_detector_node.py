@@ -34,6 +34,7 @@ from vessel_calib.node_support import (
     reliable_qos,
     sec_to_stamp,
     stamp_to_sec,
+    steady_timer,
 )
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose, VesselTrackArray
 
@@ -109,7 +110,7 @@ class ReplayDetectorNode(Node):
         self._awaiting: float | None = None
         self._sent_at = 0.0
         self.create_subscription(VesselTrackArray, ack_topic, self._on_ack, reliable_qos(10))
-        self.create_timer(0.01, self._pace_self)
+        steady_timer(self, 0.01, self._pace_self)
 
     def _on_ack(self, tracks) -> None:
         if self._awaiting is not None and abs(stamp_to_sec(tracks.header.stamp) - self._awaiting) < 1e-6:

@@ -37,11 +37,14 @@ _NS_PER_S = 1_000_000_000
 # ---------------------------------------------------------------------------------------------------------------
 # Frames and encoded images
 # ---------------------------------------------------------------------------------------------------------------
-def jpeg_problem(data: bytes) -> str | None:
+def jpeg_problem(data: bytes, strict: bool = False) -> str | None:
     """Why `data` is not a usable JPEG (a short reason), or None when it decodes.
 
     Checks the start and end markers (a truncated file has no end marker, although libjpeg would still decode
     its top part with a grey bottom) and then decodes at 1/8 scale, which parses the whole file quickly.
+    ``strict`` also refuses a JPEG that libjpeg decodes only by patching over corrupt data inside it (it says so
+    on the process's standard error and returns an image with garbage blocks): for offline tools such as the bag
+    builder, single-threaded, since it captures file descriptor 2 while decoding.
     """
     if len(data) < 128:
         return f"only {len(data)} bytes"
@@ -49,10 +52,37 @@ def jpeg_problem(data: bytes) -> str | None:
         return "no JPEG start marker"
     if b"\xff\xd9" not in data[-64:]:
         return "no JPEG end marker (truncated?)"
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_REDUCED_GRAYSCALE_8)
+    buffer = np.frombuffer(data, dtype=np.uint8)
+    if strict:
+        image, warnings = _decode_capturing_libjpeg_warnings(buffer)
+        if warnings:
+            return f"corrupt JPEG data inside ({warnings.splitlines()[0].strip()})"
+    else:
+        image = cv2.imdecode(buffer, cv2.IMREAD_REDUCED_GRAYSCALE_8)
     if image is None or image.size == 0:
         return "the JPEG does not decode"
     return None
+
+
+def _decode_capturing_libjpeg_warnings(buffer: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """Decode at 1/8 scale; what libjpeg wrote to standard error meanwhile ("Corrupt JPEG data: ...")."""
+    import os
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryFile() as captured:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(captured.fileno(), 2)
+        try:
+            image = cv2.imdecode(buffer, cv2.IMREAD_REDUCED_GRAYSCALE_8)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        text = captured.read().decode(errors="replace")
+    warnings = "\n".join(line for line in text.splitlines() if "JPEG" in line or "jpeg" in line)
+    return image, warnings
 
 
 def encode_jpeg(bgr: np.ndarray, quality: int = 95) -> bytes:

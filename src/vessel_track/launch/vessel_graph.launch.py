@@ -2,41 +2,87 @@
 
 Arguments: ``params_file`` (graph parameters), ``calib_file`` (calibration written by ``calibrate``),
 ``source`` (camera source: bag folder, .mcap, video, image folder or device:N), ``rate`` (replay rate, 0 = as
-fast as the graph consumes), ``use_sim_time``. The node list is ``vessel_track.graph.GRAPH_NODES``, the same one
-``./vessel graph`` starts on a pip-only install.
+fast as the graph consumes), ``use_sim_time`` (``auto``: true when the source is a recording, whose stamps are
+the graph's time, false for a live device), ``respawn`` (restart a node that dies), ``managed`` (the detector
+as a lifecycle node, configured and activated by this launch: ``detector_managed``). The node list is
+``vessel_track.graph.GRAPH_NODES``, the same one ``./vessel graph`` starts on a pip-only install.
+
+The per-run values go on each node's command line as ``-p name:=value``: launch_ros would write them into a
+``/**`` block, which the node's own block of ``params_file`` beats, so ``source:=`` and ``rate:=`` would be
+ignored. A parameter file that does not exist stops the launch with one line instead of running on defaults.
 """
 
+from pathlib import Path
+
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from vessel_track.graph import GRAPH_NODES
+from vessel_track.graph import GRAPH_NODES, camera_command_line, sim_time_for_source
+
+
+def _nodes(context):
+    values = {name: LaunchConfiguration(name).perform(context) for name in
+              ("params_file", "calib_file", "source", "rate", "use_sim_time", "respawn", "managed")}
+    for key in ("params_file", "calib_file"):
+        if not Path(values[key]).is_file():
+            raise RuntimeError(f"{key}:={values[key]} is not a file: give the graph's parameter file (e.g. "
+                               "config/aitas.yaml) and the calibration written by calibrate (config/aitas_camera.yaml)")
+    use_sim_time = sim_time_for_source(values["source"]) if values["use_sim_time"] == "auto" else \
+        values["use_sim_time"].lower() == "true"
+    respawn = values["respawn"].lower() == "true"
+    nodes = []
+    for graph_node in GRAPH_NODES:
+        ros_arguments = ["-p", f"use_sim_time:={'true' if use_sim_time else 'false'}"]
+        if graph_node.name == "camera":
+            ros_arguments += camera_command_line(values["source"], values["rate"])
+        common = dict(package=graph_node.package, name=graph_node.name,
+                      parameters=[values["params_file"], values["calib_file"]], ros_arguments=ros_arguments,
+                      respawn=respawn and graph_node.name != "camera", respawn_delay=1.0, output="screen",
+                      emulate_tty=True)
+        if graph_node.name == "detector" and values["managed"].lower() == "true":
+            nodes += _managed(graph_node.executable + "_managed", common)
+        else:
+            nodes.append(Node(executable=graph_node.executable, **common))
+    return nodes
+
+
+def _managed(executable: str, common: dict) -> list:
+    """A lifecycle node and the events that configure it, then activate it once it is inactive."""
+    from launch.actions import EmitEvent, RegisterEventHandler
+    from launch.events import matches_action
+    from launch_ros.actions import LifecycleNode
+    from launch_ros.event_handlers import OnStateTransition
+    from launch_ros.events.lifecycle import ChangeState
+    from lifecycle_msgs.msg import Transition
+
+    node = LifecycleNode(executable=executable, namespace="", **common)
+
+    def transition(transition_id):
+        return EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id))
+
+    return [
+        node,
+        RegisterEventHandler(OnStateTransition(target_lifecycle_node=node, goal_state="inactive",
+                                               entities=[transition(Transition.TRANSITION_ACTIVATE)])),
+        transition(Transition.TRANSITION_CONFIGURE),
+    ]
 
 
 def generate_launch_description():
-    params_file = LaunchConfiguration("params_file")
-    calib_file = LaunchConfiguration("calib_file")
-    arguments = [
+    return LaunchDescription([
         DeclareLaunchArgument("params_file", description="graph parameter file, e.g. config/aitas.yaml"),
         DeclareLaunchArgument("calib_file", description="calibration file written by vessel_calib calibrate"),
         DeclareLaunchArgument("source", default_value="", description="camera source (bag, video, folder, device:N)"),
         DeclareLaunchArgument("rate", default_value="1.0", description="replay rate; 0 = as fast as consumed"),
-        DeclareLaunchArgument("use_sim_time", default_value="false", description="follow /clock from the camera"),
-    ]
-    nodes = []
-    for graph_node in GRAPH_NODES:
-        overrides = {"use_sim_time": LaunchConfiguration("use_sim_time")}
-        if graph_node.name == "camera":
-            overrides.update({"source": LaunchConfiguration("source"), "rate": LaunchConfiguration("rate")})
-        nodes.append(
-            Node(
-                package=graph_node.package,
-                executable=graph_node.executable,
-                name=graph_node.name,
-                parameters=[params_file, calib_file, overrides],
-                output="screen",
-                emulate_tty=True,
-            )
-        )
-    return LaunchDescription([*arguments, *nodes])
+        DeclareLaunchArgument("use_sim_time", default_value="auto",
+                              description="follow /clock from the camera: true, false or auto (true for a "
+                                          "recording, false for a live device)"),
+        DeclareLaunchArgument("managed", default_value="false",
+                              description="run the detector as a lifecycle node that this launch configures and "
+                                          "activates (lifecycle services under /detector)"),
+        DeclareLaunchArgument("respawn", default_value="false",
+                              description="restart a node (all but the camera) one second after it dies"),
+        OpaqueFunction(function=_nodes),
+    ])

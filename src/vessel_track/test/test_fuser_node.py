@@ -195,7 +195,8 @@ def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem):
     elif problem == "singular":
         params = write_params(tmp_path / "p.yaml", camera_block={
             "camera_lat": 32.7, "camera_lon": -117.2, "image_width": 1280, "image_height": 720,
-            "H": [1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 0.0, 1.0], "K1": 0.0, "center_x": 640.0, "center_y": 360.0})
+            "H": [1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 0.0, 1.0], "K1": 0.0, "center_x": 640.0, "center_y": 360.0,
+            "box_anchor": 0.5})
     else:
         params = tmp_path / "p.yaml"
         params.write_text("/**:\n  ros__parameters: [unclosed\n")
@@ -206,6 +207,29 @@ def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem):
         assert "Traceback" not in done.stderr
         assert "error:" in done.stderr
     assert sys.version_info >= (3, 10)
+
+
+@pytest.mark.parametrize("problem", ["no_calibration", "no_H", "no_K1_nor_box_anchor"])
+def test_a_missing_calibration_or_calibration_key_refuses_to_start(tmp_path, problem):
+    """A file without H used to run silently on the paper's homography (heading 76.5 degrees, not the file's)."""
+    from vessel_track.simulation import challenge_camera
+
+    env = ros_env()
+    camera = challenge_camera().to_params()
+    missing = {"no_calibration": list(camera), "no_H": ["H"], "no_K1_nor_box_anchor": ["K1", "box_anchor"]}[problem]
+    kept = {k: v for k, v in camera.items() if k not in missing}
+    params = write_params(tmp_path / "p.yaml", camera_block=kept) if kept else tmp_path / "p.yaml"
+    if not kept:
+        params.write_text("/**:\n  ros__parameters:\n    use_sim_time: false\n")
+    for name in ("fuser", "gps_publisher"):
+        done = subprocess.run([_executable(name), "--ros-args", "--params-file", str(params)], env=env,
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2, (done.stdout, done.stderr)
+        assert "Traceback" not in done.stderr + done.stdout
+        if problem == "no_calibration":
+            assert "no calibration given" in done.stderr and "builtin_calibration" in done.stderr
+        else:
+            assert all(f"camera.{key}" in done.stderr for key in missing), done.stderr
 
 
 @pytest.mark.parametrize("problem", ["old_fusion_anchor", "box_anchor_outside_the_box"])

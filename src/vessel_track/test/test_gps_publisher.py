@@ -91,6 +91,7 @@ def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypa
     """A stamp with nanosec >= 1e9 is invalid; two tracks flagged is_target (even with one id) are ambiguous."""
     import rclpy
     import rclpy.node
+    import rclpy.parameter
     from sensor_msgs.msg import NavSatStatus
 
     pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
@@ -100,8 +101,9 @@ def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypa
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=199)
     node_init = rclpy.node.Node.__init__
-    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, name, **kw: node_init(self, name, context=context,
-                                                                                          **kw))
+    builtin = [rclpy.parameter.Parameter("camera.builtin_calibration", value=True)]
+    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, name, **kw: node_init(
+        self, name, context=context, parameter_overrides=builtin, **kw))
     try:
         node = GpsPublisherNode()
         fixes = []

@@ -333,3 +333,21 @@ def test_evidence_forgets_with_a_half_life_in_seconds():
 def test_evidence_windows_are_validated(field, value):
     with pytest.raises(DataError, match=field):
         SelectionConfig(**{field: value})
+
+
+def test_a_history_is_continued_only_by_a_track_that_looks_the_same_way():
+    """Video 12 of training: a track that had followed another boat ended beside the vessel; without the rule the
+    vessel's new track took that boat's negative history (and could not become the target for a minute).
+    """
+    def after_the_other_boat_ended(appearance_joins):
+        selector = OnlineTargetSelector(_evidence_config(appearance_joins=appearance_joins))
+        for k in range(8):
+            selector.update(4.0 * k, [_wt("B", [200 + 5.0 * k, 60], conf=0.02, velocity=(1.25, 0))])
+        selector.update(32.0, [_wt("B", [240, 60], status=3)])  # B ends (LOST)
+        target = selector.update(36.0, [_wt("V", [246, 60], conf=0.8)])  # the vessel, right where B would be
+        return selector, target
+
+    joined, target = after_the_other_boat_ended(False)
+    assert joined.continued == {"V": "B"} and target is None  # it inherited B's -32 of evidence
+    kept_apart, target = after_the_other_boat_ended(True)
+    assert kept_apart.continued == {} and target == "V"

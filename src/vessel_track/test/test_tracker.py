@@ -422,3 +422,20 @@ def test_tracks_carry_the_class_of_their_latest_detection():
     assert [s.label for s in tracker.update(2.0, [[0, 0, 0, 0]], [0.5], ["x"])] == ["vessel", "vessel"]
     with pytest.raises(DataError, match="labels"):
         tracker.update(3.0, [[1, 1, 5, 5]], [0.5], ["a", "b"])
+
+
+def test_confidence_agreement_keeps_tracks_on_their_vessels_where_they_pass():
+    """Two boats pass further than predicted between sparse frames: by motion alone the tracks swap boats."""
+    def run(weight):
+        tracker = MultiTargetTracker(TrackerConfig(confidence_weight=weight, min_hits=1))
+        for k in range(4):  # the vessel of interest (p 0.8) heading east, another boat (p 0.02) heading west
+            tracker.update(T0 + 4.0 * k, [box(500 + 10 * k, 420), box(600 - 10 * k, 424)], [0.8, 0.02])
+        states = tracker.update(T0 + 16.0, [box(566, 421), box(534, 423)], [0.8, 0.02])
+        return {s.track_id: round(float(s.center[0])) for s in states}
+
+    assert run(0.0) == {"T1": 534, "T2": 566}    # swapped: T1 followed the vessel, now it has the other boat
+    assert run(2.0) == {"T1": 565, "T2": 535}    # each track keeps its boat
+    with pytest.raises(DataError, match="confidence_weight"):
+        TrackerConfig(confidence_weight=-1.0)
+    with pytest.raises(DataError, match="confidence_memory"):
+        TrackerConfig(confidence_memory=0)

@@ -23,7 +23,16 @@ from pathlib import Path
 from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset, default_data_dir, parse_videos
 from vessel_calib.errors import VesselError
 from vessel_track.fuser_settings import HAND_BOX_FUSION
-from vessel_track.graph import GRAPH_NODES, RECORDER, GraphNode, GraphRunner, default_params_file, repo_root
+from vessel_track.graph import (
+    GRAPH_NODES,
+    RECORDER,
+    GraphNode,
+    GraphRunner,
+    GraphWatcher,
+    default_params_file,
+    repo_root,
+    wait_until_connected,
+)
 
 REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")
 OUTPUT_TOPICS = {
@@ -56,7 +65,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "config/aitas_camera.yaml")
     parser.add_argument("--params", type=Path, default=None, help="graph parameter file (default config/aitas.yaml)")
     parser.add_argument("--detector-params", type=Path, default=None, help="a parameter file laid over --params, "
-                        "e.g. config/detector_trained.yaml: the detector trained on the challenge camera")
+                        "e.g. config/detector_coco.yaml: the generic COCO detector set-up, for comparison")
     parser.add_argument("--detections", default="detector", metavar="detector|labels|FILE.csv",
                         help="detector: run the ONNX detector node; labels: feed the hand-labelled boxes; "
                              "FILE.csv: replay a saved detector run (`./vessel detect run --out FILE.csv`, columns "
@@ -83,7 +92,7 @@ def merged_params_file(base: Path, overlay: Path, out: Path) -> Path:
     from vessel_calib.params import atomic_write_text
 
     if not Path(overlay).is_file():
-        raise VesselError(f"--detector-params {overlay} not found (e.g. config/detector_trained.yaml)")
+        raise VesselError(f"--detector-params {overlay} not found (e.g. config/detector_coco.yaml)")
 
     def merge(into: dict, extra: dict) -> dict:
         for key, value in extra.items():
@@ -189,65 +198,6 @@ def write_label_detections(dataset: Dataset, video: int, path: Path) -> int:
 # --------------------------------------------------------------------------------------------------------------
 # Running the graph
 # --------------------------------------------------------------------------------------------------------------
-class GraphWatcher:
-    """An in-process node that sees whether the graph is connected and counts frames leaving the fuser."""
-
-    def __init__(self):
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-
-        from vessel_calib.node_support import reliable_qos
-        from vessel_msgs.msg import VesselTrackArray
-
-        self._rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("demo_watcher", context=self.context)
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.tracks_received = 0
-        self.matched: dict[str, int] = {}   # topic -> subscriptions its publisher has matched (its /diagnostics)
-        self.node.create_subscription(VesselTrackArray, "/vessel/tracks", self._on_tracks, reliable_qos(100))
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable_qos(50))
-
-    def _on_tracks(self, _message) -> None:
-        self.tracks_received += 1
-
-    def _on_diagnostics(self, message) -> None:
-        from vessel_calib.node_support import matched_subscribers
-
-        self.matched.update(matched_subscribers(message))
-
-    def spin(self, seconds: float) -> None:
-        """Process callbacks for a while."""
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
-
-    def connected(self, with_camera: bool = True, with_recorder: bool = True, with_detector: bool = True) -> bool:
-        """Every link from the detector to the recorder is matched (so no frame is lost at the start).
-
-        Seen from each publisher's own side (the ``matched_subscribers`` its node reports on ``/diagnostics``):
-        that this watcher sees a subscriber does not mean the publisher has matched it yet, and a frame published
-        before then is lost. ``with_detector=False``: the links after the detector only (a self-paced source that
-        waits for its own readers is started once these are up).
-        """
-        wanted = {"/vessel/tracks/screen": 1 + with_recorder, "/vessel/tracks": 2 + with_recorder}
-        if with_detector:
-            wanted["/vessel/detections"] = 1 + with_recorder
-        if with_recorder:
-            wanted["/vessel/fix"] = 1
-        links = [self.node.count_subscribers("/camera/image_raw/compressed") >= 1 or not with_camera]
-        links += [self.matched.get(topic, 0) >= n for topic, n in wanted.items()]
-        return all(links)
-
-    def close(self) -> None:
-        """Shut the watcher's context down."""
-        self.node.destroy_node()
-        self._rclpy.try_shutdown(context=self.context)
-
-
 @dataclass
 class VideoRun:
     """What happened while one video went through the graph."""
@@ -290,14 +240,8 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
                                            "image_qos": "reliable"})
         elif not labels:
             runner.start(nodes["detector"])
-        deadline = time.monotonic() + 60
-        while not watcher.connected(with_camera=not labels, with_detector=not labels):
-            watcher.spin(0.1)
-            failed = runner.failed()
-            if failed:
-                raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
-            if time.monotonic() > deadline:
-                raise VesselError("the graph did not connect within 60 s; see the logs in " + str(log_dir))
+        wait_until_connected(runner, watcher, 60.0, f"see the logs in {log_dir}", with_camera=not labels,
+                             with_detector=not labels)
         if labels:  # the source, self-paced: it waits for the tracker and the recorder before sending anything
             runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
                                            "wait_for_subscribers": 2})

@@ -44,6 +44,30 @@ GRAPH_NODES: tuple[GraphNode, ...] = (
 RECORDER = GraphNode("recorder", "vessel_detect", "recorder", "records the graph's outputs to an MCAP bag")
 
 
+LIVE_SOURCE_PREFIXES = ("device:", "/dev/video", "rtsp://", "http://", "https://")
+
+
+def sim_time_for_source(source: str) -> bool:
+    """Whether a graph fed by camera ``source`` runs on ``/clock`` (``use_sim_time``): a recording, yes.
+
+    A replayed bag, video file or image folder carries its own time, which the camera publishes on ``/clock``:
+    with it every node's clock, its ``/diagnostics`` and a recording of the replay are in the replay's time, not
+    today's. A live device is in today's time. No source (the parameter file's) counts as live.
+    """
+    source = str(source).strip()
+    return bool(source) and not source.startswith(LIVE_SOURCE_PREFIXES)
+
+
+def camera_command_line(source: str, rate: str | float | None) -> list[str]:
+    """``-p`` assignments of the camera's per-run values (a ``-p`` wins over the parameter files)."""
+    args: list[str] = []
+    if str(source).strip():
+        args += ["-p", f"source:={source}"]
+    if rate is not None and str(rate).strip():
+        args += ["-p", f"rate:={float(rate)!r}"]
+    return args
+
+
 def repo_root() -> Path:
     """The repository root: ``$VESSEL_ROOT`` (set by ./vessel) or found from this file's location."""
     if os.environ.get("VESSEL_ROOT"):
@@ -86,6 +110,8 @@ class RunningNode:
     process: subprocess.Popen
     log_path: Path | None
     log_file: object = field(default=None, repr=False)
+    parameters: dict[str, object] | None = None
+    restarts: int = 0
 
 
 class GraphRunner:
@@ -108,7 +134,8 @@ class GraphRunner:
         self.running: dict[str, RunningNode] = {}
         self._temp_dir: Path | None = None
 
-    def start(self, node: GraphNode, parameters: dict[str, object] | None = None) -> RunningNode:
+    def start(self, node: GraphNode, parameters: dict[str, object] | None = None,
+              append_log: bool = False) -> RunningNode:
         """Start one node with the parameter files plus per-run overrides.
 
         Overrides go into one more parameter file under the node's own name: a ``-p name:=value`` on the
@@ -126,13 +153,25 @@ class GraphRunner:
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             log_path = self.log_dir / f"{node.name}.log"
-            log_file = open(log_path, "w")
+            log_file = open(log_path, "a" if append_log else "w")
         stdout = None if self.echo and log_file is None else (log_file or subprocess.DEVNULL)
         process = subprocess.Popen(args, env=self.env, stdout=stdout, stderr=subprocess.STDOUT,
                                    start_new_session=True)
-        running = RunningNode(node, process, log_path, log_file)
+        running = RunningNode(node, process, log_path, log_file, dict(parameters) if parameters else None)
+        previous = self.running.get(node.name)
+        if previous is not None:
+            running.restarts = previous.restarts
         self.running[node.name] = running
         return running
+
+    def restart(self, name: str) -> RunningNode:
+        """Start a node that exited again, with the same parameters (its log is appended to)."""
+        old = self.running[name]
+        if old.log_file is not None:
+            old.log_file.close()
+            old.log_file = None
+        old.restarts += 1
+        return self.start(old.node, old.parameters, append_log=True)
 
     def _overrides_dir(self) -> Path:
         if self.log_dir is not None:
@@ -184,6 +223,109 @@ class GraphRunner:
         return "\n".join(running.log_path.read_text(errors="replace").splitlines()[-lines:])
 
 
+class GraphWatcher:
+    """An in-process node that sees whether the graph is connected and counts frames leaving the fuser."""
+
+    def __init__(self):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.context import Context
+
+        from vessel_calib.node_support import reliable_qos
+        from vessel_msgs.msg import VesselTrackArray
+
+        self._rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("demo_watcher", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.tracks_received = 0
+        self.matched: dict[str, int] = {}   # topic -> subscriptions its publisher has matched (its /diagnostics)
+        self.node.create_subscription(VesselTrackArray, "/vessel/tracks", self._on_tracks, reliable_qos(100))
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable_qos(50))
+
+    def _on_tracks(self, _message) -> None:
+        self.tracks_received += 1
+
+    def _on_diagnostics(self, message) -> None:
+        from vessel_calib.node_support import matched_subscribers
+
+        self.matched.update(matched_subscribers(message))
+
+    def spin(self, seconds: float) -> None:
+        """Process callbacks for a while."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def connected(self, with_camera: bool = True, with_recorder: bool = True, with_detector: bool = True) -> bool:
+        """Every link from the detector to the recorder is matched (so no frame is lost at the start).
+
+        Seen from each publisher's own side (the ``matched_subscribers`` its node reports on ``/diagnostics``):
+        that this watcher sees a subscriber does not mean the publisher has matched it yet, and a frame published
+        before then is lost. ``with_detector=False``: the links after the detector only (a self-paced source that
+        waits for its own readers is started once these are up).
+        """
+        wanted = {"/vessel/tracks/screen": 1 + with_recorder, "/vessel/tracks": 2 + with_recorder}
+        if with_detector:
+            wanted["/vessel/detections"] = 1 + with_recorder
+        if with_recorder:
+            wanted["/vessel/fix"] = 1
+        links = [self.node.count_subscribers("/camera/image_raw/compressed") >= 1 or not with_camera]
+        links += [self.matched.get(topic, 0) >= n for topic, n in wanted.items()]
+        return all(links)
+
+    def close(self) -> None:
+        """Shut the watcher's context down."""
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: float, where: str, **links) -> None:
+    """Spin ``watcher`` until the graph is connected (``GraphWatcher.connected(**links)``), before the camera.
+
+    A frame published before every link is matched is lost without a count; this is what keeps the first frames.
+    Raises VesselError naming the node that stopped meanwhile, or the time-out (``where``: where to look).
+    """
+    deadline = time.monotonic() + timeout_s
+    while not watcher.connected(**links):
+        watcher.spin(0.1)
+        failed = runner.failed()
+        if failed:
+            raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
+        if time.monotonic() > deadline:
+            raise VesselError(f"the graph did not connect within {timeout_s:g} s; {where}")
+
+
+MAX_RESTARTS = 5
+"""A node restarted this many times is left down and the graph stops: it fails for a reason a restart cannot fix."""
+
+
+def restart_delay_s(restarts: int) -> float:
+    """Back-off before restart number ``restarts + 1``: 0.5 s, then doubling, at most 8 s."""
+    return min(0.5 * 2.0 ** restarts, 8.0)
+
+
+def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) -> bool:
+    """Restart each failed node after its back-off; False once one has failed MAX_RESTARTS times."""
+    now = time.monotonic()
+    for name in failed:
+        running = runner.running[name]
+        if running.restarts >= MAX_RESTARTS:
+            print(f"[graph] {name} failed {running.restarts + 1} times (exit {running.process.returncode}): not "
+                  f"restarted again; see its log", file=sys.stderr)
+            return False
+        due = backoff.setdefault(name, now + restart_delay_s(running.restarts))
+        if now < due:
+            continue
+        del backoff[name]
+        print(f"[graph] {name} exited with status {running.process.returncode}: restarting it "
+              f"(restart {running.restarts + 1} of at most {MAX_RESTARTS})", file=sys.stderr)
+        runner.restart(name)
+    return True
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Command line of ``./vessel graph``."""
     parser = argparse.ArgumentParser(
@@ -204,12 +346,22 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--log-dir", type=Path, default=None, help="write each node's output to DIR/<node>.log "
                         "instead of the terminal")
     parser.add_argument("--exit-at-end", action="store_true", help="stop the graph when the camera source ends")
+    parser.add_argument("--sim-time", choices=("auto", "true", "false"), default="auto",
+                        help="use_sim_time of every node: auto (default) follows the replay's /clock for a recorded "
+                        "source (bag, video, folder), so messages, /diagnostics and a --record are all in its time")
+    parser.add_argument("--respawn", action="store_true",
+                        help="restart a node that dies (back-off 0.5 s doubling to 8 s, at most 5 times), as "
+                        "respawn:=true does for ros2 launch")
+    parser.add_argument("--connect-timeout", type=float, default=60.0,
+                        help="seconds to wait for every link of the graph to be matched before the camera starts "
+                        "(frames sent earlier would be lost)")
     return parser.parse_args(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph until Ctrl-C (or the end of the source with --exit-at-end)."""
     args = parse_args(argv)
+    runner: GraphRunner | None = None
     try:
         params = [args.params or default_params_file(), args.calib or default_calibration_file()]
         wanted = [name.strip() for name in args.nodes.split(",") if name.strip()]
@@ -221,17 +373,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         stop_requested = threading.Event()
         signal.signal(signal.SIGINT, lambda *_: stop_requested.set())
         signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
+        backoff: dict[str, float] = {}  # node -> monotonic time before which it is not restarted
+        sim_time = sim_time_for_source(args.source or "") if args.sim_time == "auto" else args.sim_time == "true"
+        if sim_time:
+            print("[graph] use_sim_time: the nodes follow the replay's /clock", file=sys.stderr)
         if args.record is not None:
-            runner.start(RECORDER, {"output": str(args.record)})
+            runner.start(RECORDER, {"output": str(args.record), "use_sim_time": sim_time})
         for name in reversed(wanted):  # consumers first, so nothing the camera sends is missed
-            overrides: dict[str, object] = {}
             if name == "camera":
-                if args.source:
-                    overrides["source"] = args.source
-                if args.rate is not None:
-                    overrides["rate"] = args.rate
-            runner.start(known[name], overrides)
+                continue
+            runner.start(known[name], {"use_sim_time": sim_time})
             print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
+        if "camera" in wanted:
+            if set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
+                watcher = GraphWatcher()
+                try:
+                    wait_until_connected(runner, watcher, args.connect_timeout, "see the nodes' output above",
+                                         with_recorder=args.record is not None)
+                finally:
+                    watcher.close()
+                print("[graph] every link from the detector to the GPS publisher is matched", file=sys.stderr)
+            overrides: dict[str, object] = {"use_sim_time": sim_time}
+            if args.source:
+                overrides["source"] = args.source
+            if args.rate is not None:
+                overrides["rate"] = args.rate
+            runner.start(known["camera"], overrides)
+            print(f"[graph] started camera: {known['camera'].role}", file=sys.stderr)
         while not stop_requested.is_set():
             time.sleep(0.2)
             if args.exit_at_end and "camera" in runner.running and runner.running["camera"].process.poll() is not None:
@@ -239,7 +407,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 time.sleep(2.0)
                 break
             failed = runner.failed()
-            if failed:
+            if failed and args.respawn:
+                if not _respawn(runner, failed, backoff):
+                    break
+            elif failed:
                 print(f"[graph] node(s) exited with an error: {failed}", file=sys.stderr)
                 break
         statuses = runner.stop()
@@ -247,6 +418,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0 if all(code == 0 for code in statuses.values()) else 1
     except VesselError as error:
         print(f"error: {error}", file=sys.stderr)
+        if runner is not None:  # never leave started nodes behind
+            runner.stop()
         return 2
 
 

@@ -92,6 +92,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.recent_evidence_s": ("With the evidence score, a track whose confidences of the last this many "
                                     "seconds sum to non-positive log-odds may not be the target (0: off), s.",
                                     (0.0, 1e9)),
+    "selection.appearance_joins": ("With the evidence score, an ended track's history is continued only by a "
+                                   "track whose first box looks the same way (vessel of interest or not).", None),
     "selection.evidence_half_life_s": ("With the evidence score, each confidence's log-odds counts "
                                        "0.5^(age / half-life) (0: no forgetting), s.", (0.0, 1e9)),
     "selection.path_log_floor": ("Lower bound of the path factor log(max(l, 1)) (paper 0: tracks that have not "

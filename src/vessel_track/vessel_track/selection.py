@@ -82,6 +82,8 @@ class SelectionConfig:
         however much evidence it gathered before (0: off). The screen tracker can move a track that followed the
         vessel of interest onto another boat; its long history would keep it the target while its boxes now say
         it is not the vessel. Online only: the offline pass scores whole trajectories.
+    appearance_joins: with the ``evidence`` score, an ended track's history is continued (online join) only by a
+        track whose first box looks the same way (both likely the vessel of interest, or both not). Online only.
     evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
         ``0.5 ** (age / evidence_half_life_s)`` (0: no forgetting). A track that followed another boat and then
         moved onto the vessel of interest (or the other way round) is ranked by what it follows now, not by a
@@ -114,6 +116,7 @@ class SelectionConfig:
     positive_evidence_only: bool = False
     recent_evidence_s: float = 0.0
     evidence_half_life_s: float = 0.0
+    appearance_joins: bool = False
 
     def recent_evidence_ok(self, confidences, ages) -> bool:
         """Whether the confidences of the last ``recent_evidence_s`` still say the vessel of interest.
@@ -518,13 +521,23 @@ class OnlineTargetSelector:
         running = self._running.get(track_id) or self._ended.get(track_id)
         return running.score(self.config, self._now) if running is not None else 0.0
 
-    def _try_inherit(self, track_id: str, stamp: float, position: np.ndarray) -> _Running | None:
-        """An ended track whose extrapolation reaches ``position`` now: its history continues in ``track_id``."""
+    def _try_inherit(self, track_id: str, stamp: float, position: np.ndarray,
+                     confidence: float = math.nan) -> _Running | None:
+        """An ended track whose extrapolation reaches ``position`` now: its history continues in ``track_id``.
+
+        With ``appearance_joins`` (evidence score) a history is only continued by a track whose first box looks
+        the same way: one that says the vessel of interest does not take another boat's history, nor the other way.
+        """
         best, best_cost = None, math.inf
         cfg = self.config
+        looks = 0.0
+        if cfg.appearance_joins and cfg.confidence_score == "evidence" and math.isfinite(confidence):
+            looks = float(clipped_log_odds([confidence], cfg.evidence_clip)[0])
         for ended_id, ended in self._ended.items():
             gap = stamp - ended.last_stamp
             if not (0 <= gap <= cfg.join_max_gap_s) or ended.last_position is None or ended.excluded_heir == track_id:
+                continue
+            if looks * ended.score(cfg, stamp) < 0:
                 continue
             jump = float(np.hypot(*(position - ended.last_position)))
             cost = _continuation_cost(cfg, ended.last_position, ended.velocity, gap, position, jump, gap)
@@ -563,7 +576,8 @@ class OnlineTargetSelector:
             if running is None:
                 running = None
                 if measured:
-                    running = self._try_inherit(tid, stamp, position)
+                    running = self._try_inherit(tid, stamp, position,
+                                                float(wt.screen.confidence) if wt.screen.updated else math.nan)
                 if running is None:
                     running = _Running(deque(maxlen=cfg.history_length), deque(maxlen=cfg.history_length),
                                        first_stamp=stamp)

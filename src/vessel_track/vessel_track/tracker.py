@@ -132,6 +132,15 @@ class TrackerConfig:
     max_size_ratio: float = 3.0
     """A detection whose width or height differs from the track's box by more than this factor is not
     associated (0 disables the size gate)."""
+    confidence_weight: float = 0.0
+    """Weight of the confidence-agreement term in the association cost (0 disables it). With confidences that
+    are a probability of being one kind of vessel (the vessel of interest, ``confidence_class``), a track whose
+    recent boxes were likely that vessel should not take a box the detector calls another boat, nor the other way
+    round: the term is ``-2 ln(2 (q p + (1 - q)(1 - p)))``, q the mean of the track's last
+    ``confidence_memory`` confidences and p the box's, both bounded to [0.05, 0.95]; it counts in the clutter
+    test too, so a track may coast rather than take such a box."""
+    confidence_memory: int = 3
+    """Updates whose confidences make a track's q for ``confidence_weight``."""
 
     # --- life cycle ---
     min_hits: int = 3
@@ -174,7 +183,7 @@ class TrackerConfig:
                     "tentative_max_coast_s", "size_log_std", "min_box_size_px")
         non_negative = ("measurement_std_size_frac", "process_noise", "process_noise_y", "clutter_density_per_mpx",
                         "init_velocity_std_x_px_s", "init_velocity_std_y_px_s", "size_weight", "max_size_ratio",
-                        "duplicate_iou", "min_score", "backwards_reset_s")
+                        "duplicate_iou", "min_score", "backwards_reset_s", "confidence_weight")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
@@ -189,7 +198,7 @@ class TrackerConfig:
                 raise DataError(f"tracker config: {name} must be one of {', '.join(allowed)}, "
                                 f"got {getattr(self, name)!r}")
         for name, least in (("min_hits", 1), ("max_tracks", 1), ("history_length", 1),
-                            ("tentative_max_misses", 0)):
+                            ("tentative_max_misses", 0), ("confidence_memory", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
                 raise DataError(f"tracker config: {name} must be an integer >= {least}, got {value!r}")
@@ -526,7 +535,8 @@ class MultiTargetTracker:
         for group in (established, tentative):
             if not group or not free_dets:
                 continue
-            pairs = self._associate([self._tracks[i] for i in group], centers[free_dets], sizes[free_dets])
+            pairs = self._associate([self._tracks[i] for i in group], centers[free_dets], sizes[free_dets],
+                                    confs[free_dets])
             for g, d in pairs:
                 matches[group[g]] = free_dets[d]
             taken = {free_dets[d] for _, d in pairs}
@@ -646,9 +656,9 @@ class MultiTargetTracker:
 
     # ------------------------------------------------------------------ association
 
-    def _associate(self, tracks: list[_Track], centers: np.ndarray,
-                   sizes: np.ndarray) -> list[tuple[int, int]]:
-        cost = self._cost_matrix(tracks, centers, sizes)
+    def _associate(self, tracks: list[_Track], centers: np.ndarray, sizes: np.ndarray,
+                   confs: np.ndarray | None = None) -> list[tuple[int, int]]:
+        cost = self._cost_matrix(tracks, centers, sizes, confs)
         if self.config.association == "global":
             miss = self._clutter_cost() if self.config.distance_metric == "mahalanobis" else math.inf
             if math.isfinite(miss) and cost.size:
@@ -679,34 +689,60 @@ class MultiTargetTracker:
             cost += _CLUTTER_LOG_SIZE_NLL - 2.0 * math.log(2.0 * math.pi * cfg.size_log_std**2)
         return cost
 
-    def _cost_matrix(self, tracks: list[_Track], centers: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    def _confidence_terms(self, tracks: list[_Track], confs: np.ndarray | None) -> np.ndarray:
+        """(tracks, detections) ``-2 ln(2 (q p + (1 - q)(1 - p)))`` times ``confidence_weight`` (0 when off)."""
+        cfg = self.config
+        n_dets = 0 if confs is None else len(confs)
+        if cfg.confidence_weight <= 0 or confs is None:
+            return np.zeros((len(tracks), n_dets))
+        p = np.clip(np.asarray(confs, dtype=float), 0.05, 0.95)
+        q = np.array([np.mean([entry[3] for entry in list(t.history)[-cfg.confidence_memory:]] or [t.confidence])
+                      for t in tracks], dtype=float)
+        q = np.clip(np.where(np.isfinite(q), q, 0.5), 0.05, 0.95)
+        agreement = q[:, None] * p[None, :] + (1.0 - q[:, None]) * (1.0 - p[None, :])
+        return cfg.confidence_weight * -2.0 * np.log(2.0 * agreement)
+
+    def _cost_matrix(self, tracks: list[_Track], centers: np.ndarray, sizes: np.ndarray,
+                     confs: np.ndarray | None = None) -> np.ndarray:
         """(tracks, detections) association cost; gated-out pairs cost ``_FORBIDDEN_COST``."""
         cfg = self.config
-        cost = np.full((len(tracks), len(centers)), _FORBIDDEN_COST)
-        clutter_cost = self._clutter_cost()
-        for i, track in enumerate(tracks):
-            P = track.kf.P[np.ix_((0, 2), (0, 2))]
-            for j in range(len(centers)):
-                S = P + self._measurement_cov(sizes[j])
-                d = centers[j] - track.center
-                dist = float(np.hypot(d[0], d[1]))
-                if dist > cfg.max_gate_px:
-                    continue
-                mahalanobis2 = float(d @ np.linalg.solve(S, d))
-                if dist > cfg.gate_px and mahalanobis2 > cfg.gate_sigmas**2:
-                    continue
-                log_det_S = math.log(float(np.linalg.det(S)))
-                ratio = np.log(sizes[j] / track.size)
-                if cfg.max_size_ratio > 0 and np.any(np.abs(ratio) > math.log(cfg.max_size_ratio)):
-                    continue
-                size_term = float(np.sum((ratio / cfg.size_log_std) ** 2))
-                if mahalanobis2 + log_det_S + (size_term if cfg.size_weight > 0 else 0.0) > clutter_cost:
-                    continue  # likelier clutter than this track
-                if cfg.distance_metric == "mahalanobis":
-                    position_term = mahalanobis2 + log_det_S
-                else:
-                    position_term = (dist / cfg.measurement_std_px) ** 2
-                cost[i, j] = position_term + cfg.size_weight * size_term
+        n_tracks, n_dets = len(tracks), len(centers)
+        cost = np.full((n_tracks, n_dets), _FORBIDDEN_COST)
+        if n_tracks == 0 or n_dets == 0:
+            return cost
+        centers = np.asarray(centers, dtype=float).reshape(-1, 2)
+        sizes = np.asarray(sizes, dtype=float).reshape(-1, 2)
+        # Every pair at once: S = P_track + R_det (2x2), its closed-form inverse and determinant.
+        P = np.array([t.kf.P[np.ix_((0, 2), (0, 2))] for t in tracks], dtype=float)          # (T, 2, 2)
+        R = cfg.measurement_std_px**2 + (cfg.measurement_std_size_frac * sizes) ** 2          # (D, 2) diagonal
+        s00 = P[:, None, 0, 0] + R[None, :, 0]
+        s11 = P[:, None, 1, 1] + R[None, :, 1]
+        s01 = P[:, None, 0, 1] + np.zeros((1, n_dets))
+        s10 = P[:, None, 1, 0] + np.zeros((1, n_dets))
+        det = s00 * s11 - s01 * s10
+        track_centers = np.array([t.center for t in tracks], dtype=float)                   # (T, 2)
+        d = centers[None, :, :] - track_centers[:, None, :]                                  # (T, D, 2)
+        dist = np.hypot(d[..., 0], d[..., 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mahalanobis2 = (d[..., 0] ** 2 * s11 - d[..., 0] * d[..., 1] * (s01 + s10) + d[..., 1] ** 2 * s00) / det
+            log_det_S = np.log(det)
+            ratio = np.log(sizes[None, :, :] / np.array([t.size for t in tracks], dtype=float)[:, None, :])
+        size_term = np.sum((ratio / cfg.size_log_std) ** 2, axis=2)
+        confidence_terms = self._confidence_terms(tracks, confs)
+        if not confidence_terms.size:
+            confidence_terms = np.zeros((n_tracks, n_dets))
+        admissible = (dist <= cfg.max_gate_px) & ~((dist > cfg.gate_px) & (mahalanobis2 > cfg.gate_sigmas**2))
+        if cfg.max_size_ratio > 0:
+            admissible &= ~np.any(np.abs(ratio) > math.log(cfg.max_size_ratio), axis=2)
+        likelihood = mahalanobis2 + log_det_S + (size_term if cfg.size_weight > 0 else 0.0) + confidence_terms
+        admissible &= ~(likelihood > self._clutter_cost())  # likelier clutter than this track
+        admissible &= np.isfinite(mahalanobis2) & np.isfinite(log_det_S) & np.isfinite(size_term)
+        if cfg.distance_metric == "mahalanobis":
+            position_term = mahalanobis2 + log_det_S
+        else:
+            position_term = (dist / cfg.measurement_std_px) ** 2
+        pair_cost = position_term + cfg.size_weight * size_term + confidence_terms
+        cost[admissible] = pair_cost[admissible]
         return cost
 
     # ------------------------------------------------------------------ life cycle

@@ -20,7 +20,6 @@ from dataclasses import fields
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 
 from vessel_calib.errors import DataError, VesselError
 from vessel_calib.node_support import (
@@ -62,6 +61,11 @@ TRACKER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "clutter_density_per_mpx": ("Expected false detections per frame per megapixel: a detection must be likelier "
                                 "from the track than from clutter (0 disables).", (0.0, 1e6)),
     "size_weight": ("Weight of the box-size similarity in the association cost (0 disables).", (0.0, 1e3)),
+    "confidence_weight": ("Weight of the confidence-agreement term in the association cost: a track that followed "
+                          "a likely vessel of interest does not take an unlikely box, nor the other way round "
+                          "(0 disables).", (0.0, 1e3)),
+    "confidence_memory": ("Updates whose confidences make a track's side of the confidence-agreement term.",
+                          None),
     "size_log_std": ("Expected change of ln(width), ln(height) between associated boxes.", (1e-3, 10.0)),
     "max_size_ratio": ("Boxes differing from the track's size by more than this factor are not associated "
                        "(0 disables).", (0.0, 1e3)),
@@ -81,7 +85,7 @@ TRACKER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
 }
 
 _INT_RANGES = {"min_hits": (1, 1000), "tentative_max_misses": (0, 1000), "max_tracks": (1, 100000),
-               "history_length": (1, 10_000_000)}
+               "history_length": (1, 10_000_000), "confidence_memory": (1, 1000)}
 
 PROBLEMS = {
     "detections_invalid": "detections with NaN/inf coordinates, a NaN score or a width/height below "
@@ -187,6 +191,11 @@ def track_to_msg(state: TrackState, header) -> VesselTrack:
     return msg
 
 
+EVERY_CLASS = "*"
+"""The ``classes`` entry that tracks every class (a parameter needs a value: ``ros2 param dump`` answers nothing
+for a node with an unset one)."""
+
+
 class TrackerNode(Node):
     """Thin ROS wrapper around ``MultiTargetTracker``; see the module docstring."""
 
@@ -199,10 +208,10 @@ class TrackerNode(Node):
                                          "Screen-space tracks of each image (vessel_msgs/VesselTrackArray).")
         depth = declare_parameter(self, "qos_depth", 10, "Queue depth of the reliable input and output.",
                                   int_range=(1, 1000))
-        classes = declare_parameter(self, "classes", Parameter.Type.STRING_ARRAY,
-                                    "Class ids (hypothesis.class_id) to track, e.g. ['boat']; unset: every class "
+        classes = declare_parameter(self, "classes", [EVERY_CLASS],
+                                    "Class ids (hypothesis.class_id) to track, e.g. ['boat']; ['*']: every class "
                                     "the detector publishes.")
-        self.classes = frozenset(classes) if classes else None
+        self.classes = None if not classes or EVERY_CLASS in classes else frozenset(classes)
         self.confidence_class = declare_parameter(
             self, "confidence_class", "", "Hypothesis class_id whose score is a track's confidence when a detection "
             "has it (the detector's target_class, e.g. vessel_of_interest); '' : the best accepted hypothesis.")

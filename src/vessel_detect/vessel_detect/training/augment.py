@@ -2,8 +2,12 @@
 
 A crop is a window of the band below the horizon (where vessels are), resized to the network's training
 input. Its top follows the horizon with a random shift, its scale is drawn log-uniformly, and with probability
-``focus_target`` it is placed to contain the vessel of interest, so that the rare positive is seen often. Boxes
-that the crop cuts to less than ``min_visible`` of their area become ignore regions, not negatives.
+``focus_target`` it is placed to contain the vessel of interest, so that the rare positive is seen often. With
+probability ``zoom_target`` the crop is instead a close-up of the vessel of interest at a scale drawn from
+``zoom_range``, centred on it wherever it is in the band: the training passes keep the vessel far enough to be at
+most about 100 px wide, while the band reaches the image bottom, where a vessel passing close to the camera is
+several times larger. Boxes that the crop cuts to less than ``min_visible`` of their area become ignore regions,
+not negatives.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ class AugmentSettings:
     value: float = 0.35
     focus_target: float = 0.7
     min_visible: float = 0.45
+    zoom_target: float = 0.2
+    zoom_range: tuple[float, float] = (1.6, 4.0)
 
 
 def band_top_px(camera, margin_px: float) -> float:
@@ -88,17 +94,32 @@ def random_sample(bgr: np.ndarray, labels, band_top: float, rng: np.random.Gener
     """One augmented crop of a frame and its ``FrameLabels``."""
     height, width = bgr.shape[:2]
     out_w, out_h = settings.crop_wh
+    targets = labels.boxes[labels.classes == 0]
+    if len(targets) and settings.zoom_target > 0 and rng.random() < settings.zoom_target:
+        lo, hi = settings.zoom_range
+        scale = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+        src_w, src_h = out_w / scale, out_h / scale
+        cx, cy = 0.5 * (targets[0, 0] + targets[0, 2]), 0.5 * (targets[0, 1] + targets[0, 3])
+        x0 = cx - rng.uniform(0.25, 0.75) * src_w
+        y0 = cy - rng.uniform(0.3, 0.7) * src_h
+        return _finish(bgr, labels, x0, y0, scale, rng, settings)
     lo, hi = settings.scale_range
     scale = math.exp(rng.uniform(math.log(lo), math.log(hi)))
     src_w, src_h = out_w / scale, out_h / scale
     y0 = band_top + rng.uniform(-settings.top_jitter_px, settings.top_jitter_px)
     y0 = min(max(y0, 0.0), max(height - src_h * 0.6, 0.0))
-    targets = labels.boxes[labels.classes == 0]
     if len(targets) and rng.random() < settings.focus_target:
         cx = 0.5 * (targets[0, 0] + targets[0, 2])
         x0 = cx - rng.uniform(0.1, 0.9) * src_w
     else:
         x0 = rng.uniform(-0.05 * src_w, max(width - 0.95 * src_w, 0.0))
+    return _finish(bgr, labels, x0, y0, scale, rng, settings)
+
+
+def _finish(bgr: np.ndarray, labels, x0: float, y0: float, scale: float, rng: np.random.Generator,
+            settings: AugmentSettings) -> Sample:
+    """The crop at ``(x0, y0)`` and ``scale``, its boxes, flip and colour jitter."""
+    out_w, out_h = settings.crop_wh
     image = crop_window(bgr, x0, y0, scale, (out_w, out_h))
     boxes, visible = _clip(warp_boxes(labels.boxes, x0, y0, scale), (out_w, out_h))
     ignore, _ = _clip(warp_boxes(labels.ignore, x0, y0, scale), (out_w, out_h))

@@ -48,7 +48,8 @@ def model_card(model_path: Path, summary: dict) -> str:
         f"- {settings.get('epochs')} epochs, batch {settings.get('batch_size')}, AdamW lr "
         f"{settings.get('learning_rate')}, seed {settings.get('seed')}; crops of the band "
         f"{settings.get('augment', {}).get('crop_wh')} at scales {settings.get('augment', {}).get('scale_range')}, "
-        "flips, HSV jitter, horizon shifts;",
+        f"close-ups of the vessel at scales {settings.get('augment', {}).get('zoom_range')} in "
+        f"{settings.get('augment', {}).get('zoom_target', 0.0):.0%} of the crops, flips, HSV jitter, horizon shifts;",
         f"- {summary.get('seconds', 0) / 60:.1f} min on the CPU; final loss {last.get('loss', float('nan')):.3f}; "
         f"ONNX output matches PyTorch to {summary.get('onnx_max_abs_diff', float('nan')):.1e}.",
         "",

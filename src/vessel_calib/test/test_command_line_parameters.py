@@ -1,0 +1,123 @@
+"""``-p name:=value`` on a node's command line: it wins over the parameter files, and a bad one stops the node.
+
+rcl files ``-p`` assignments under ``/**``, which the node's own block of a parameter file beats: with
+``--params-file config/aitas.yaml`` every ``-p`` of a value that file sets per node was silently ignored,
+misspelt names and out-of-range values included.
+"""
+
+from __future__ import annotations
+
+import subprocess
+
+import pytest
+
+from vessel_calib.node_support import command_line_parameters
+
+REPO = __import__("pathlib").Path(__file__).resolve().parents[3]
+GRAPH_FILE = REPO / "config" / "aitas.yaml"
+
+
+def test_command_line_assignments_are_read_for_this_node_only():
+    args = ["tracker", "--ros-args", "--params-file", "f.yaml", "-p", "gate_px:=55.0", "--param", "min_hits:=2",
+            "-p", "fuser:max_range_m:=9.0", "-p", "tracker:size_weight:=0.5", "--", "-p", "not_ros:=1"]
+    assert command_line_parameters(args, "tracker") == {"gate_px": "55.0", "min_hits": "2", "size_weight": "0.5"}
+    assert command_line_parameters(["tracker", "-p", "gate_px:=1.0"], "tracker") == {}  # outside --ros-args
+
+
+@pytest.mark.ros
+def test_a_command_line_value_beats_the_nodes_own_block_of_the_parameter_file(ros_env, ros_context, start_node,
+                                                                               wait_until):
+    import rclpy
+    from rcl_interfaces.srv import GetParameters
+
+    assert "gate_px: 40.0" in GRAPH_FILE.read_text()  # the file sets it in the tracker's own block
+    node = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(GRAPH_FILE), "-p",
+                      "gate_px:=55.0", "-p", "min_hits:=2", "-p", "use_sim_time:=true")
+    probe = rclpy.create_node("parameter_probe", context=ros_context)
+    client = probe.create_client(GetParameters, "/tracker/get_parameters")
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe)
+    assert wait_until(lambda: client.service_is_ready() or node.process.poll() is not None, 60,
+                      spin=lambda: executor.spin_once(timeout_sec=0.1)), node.output()
+    future = client.call_async(GetParameters.Request(names=["gate_px", "min_hits", "max_gate_px", "use_sim_time"]))
+    assert wait_until(future.done, 30, spin=lambda: executor.spin_once(timeout_sec=0.1))
+    values = future.result().values
+    assert (values[0].double_value, values[1].integer_value, values[2].double_value) == (55.0, 2, 240.0)
+    assert values[3].bool_value  # rclpy declares it before any node code; the file's /** block says false
+    probe.destroy_node()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("assignment, message", [
+    ("gate_px:=-5.0", "parameter gate_px of tracker"),              # out of range
+    ("gate_pxx:=50.0", "no parameter gate_pxx (did you mean gate_px?)"),   # misspelt
+    ("gate_px:=abc", "parameter gate_px of tracker"),               # wrong type
+])
+def test_a_bad_command_line_value_stops_the_node_with_one_line(ros_env, assignment, message):
+    path = REPO / "ros2_ws/install/vessel_track/lib/vessel_track/tracker"
+    done = subprocess.run([str(path), "--ros-args", "--params-file", str(GRAPH_FILE), "-p", assignment],
+                          env=ros_env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert message in done.stderr and "Traceback" not in done.stderr + done.stdout
+
+
+def _python_value(value):
+    """A rcl_interfaces/ParameterValue as the Python value a parameter file holds."""
+    fields = {1: "bool_value", 2: "integer_value", 3: "double_value", 4: "string_value", 5: "byte_array_value",
+              6: "bool_array_value", 7: "integer_array_value", 8: "double_array_value", 9: "string_array_value"}
+    assert value.type in fields, f"parameter of type {value.type} (not set?)"
+    got = getattr(value, fields[value.type])
+    return list(got) if value.type >= 5 else got
+
+
+def _all_parameters(executor, probe, node_name, wait_until, process):
+    from rcl_interfaces.srv import GetParameters, ListParameters
+
+    lister = probe.create_client(ListParameters, f"/{node_name}/list_parameters")
+    getter = probe.create_client(GetParameters, f"/{node_name}/get_parameters")
+    assert wait_until(lambda: (lister.service_is_ready() and getter.service_is_ready()) or process.poll() is not None,
+                      60, spin=lambda: executor.spin_once(timeout_sec=0.1))
+    listed = lister.call_async(ListParameters.Request())
+    assert wait_until(listed.done, 30, spin=lambda: executor.spin_once(timeout_sec=0.1))
+    names = sorted(listed.result().result.names)
+    got = getter.call_async(GetParameters.Request(names=names))
+    assert wait_until(got.done, 30, spin=lambda: executor.spin_once(timeout_sec=0.1))
+    values = got.result().values
+    # rclpy answers a request that names one unset parameter with nothing at all: `ros2 param dump` printed {}.
+    assert len(values) == len(names), f"{node_name}: {len(values)} values for {len(names)} parameters"
+    return {name: _python_value(value) for name, value in zip(names, values, strict=True)}
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("package, executable", [("vessel_track", "tracker"), ("vessel_track", "fuser"),
+                                                 ("vessel_track", "gps_publisher")])
+def test_every_parameter_dumps_and_the_dump_reloads_the_same_node(package, executable, ros_env, ros_context,
+                                                                   start_node, wait_until, tmp_path):
+    """What `ros2 param dump` does (list, then get every name), and the dump back as the only parameter file."""
+    import math
+
+    import rclpy
+    import yaml
+
+    calibration = REPO / "config" / "aitas_camera.yaml"
+    first = start_node(package, executable, "--ros-args", "--params-file", str(GRAPH_FILE), "--params-file",
+                       str(calibration))
+    probe = rclpy.create_node("dump_probe", context=ros_context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe)
+    dumped = _all_parameters(executor, probe, executable, wait_until, first.process)
+    assert first.stop() == 0
+    dump_file = tmp_path / "dump.yaml"
+    dump_file.write_text(yaml.safe_dump({f"/{executable}": {"ros__parameters": dumped}}))
+    again = start_node(package, executable, "--ros-args", "--params-file", str(dump_file))
+    reloaded = _all_parameters(executor, probe, executable, wait_until, again.process)
+    probe.destroy_node()
+
+    def same(a, b):
+        if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+            return True
+        return a == b
+
+    assert reloaded.keys() == dumped.keys()
+    assert all(same(reloaded[k], dumped[k]) for k in dumped), {k: (dumped[k], reloaded[k]) for k in dumped
+                                                                if not same(reloaded[k], dumped[k])}
