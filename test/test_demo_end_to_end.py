@@ -104,3 +104,27 @@ def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_di
     assert run["frames_expected"] > 0 and run["frames_out"] == run["frames_expected"], summary["runs"]
     with (out / "predictions.csv").open() as handle:
         assert list(csv.DictReader(handle)), "no fix published for the hand-labelled vessel"
+
+
+def test_a_recording_whose_recorder_died_is_recovered_and_kept(tmp_path):
+    """The demo used to abort with no output at all when the recorder was killed with -9."""
+    from vessel_detect import bag_io, synthetic
+    from vessel_track.demo import VideoRun, readable_recording
+
+    recording = tmp_path / "video_13"
+    writer = bag_io.BagWriter(recording, atomic=False).open()
+    writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+    for k in range(5):
+        writer.write(bag_io.DEFAULT_IMAGE_TOPIC,
+                     bag_io.compressed_image(1_601_494_000_000_000_000 + k * 40_000_000, synthetic.frame_jpeg(k)))
+    writer.flush()  # what the recorder does every flush_period_s; then it is killed: no summary, no metadata.yaml
+    messages: list[str] = []
+    run = VideoRun(13, 36, 5, 1.0, recording, {"recorder": -9}, ("recorder",))
+    assert readable_recording(run, messages.append)
+    assert any("5 messages recovered" in m for m in messages), messages
+    with bag_io.BagReader(recording) as reader:
+        assert reader.message_count() == 5
+    nothing = VideoRun(14, 36, 0, 1.0, tmp_path / "video_14", {}, ("recorder",))
+    (tmp_path / "video_14").mkdir()
+    assert not readable_recording(nothing, messages.append)
+    assert "left out of the scores" in messages[-1]

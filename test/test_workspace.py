@@ -82,7 +82,7 @@ def _node_arguments(package: str, executable: str, tmp_path: Path) -> list[str]:
         return ["--ros-args", "-p", f"output:={tmp_path / 'recording'}"]
     if (package, executable) == ("vessel_calib", "calibrate"):
         return ["--ros-args", "-p", f"out:={tmp_path / 'camera.yaml'}"]
-    if executable in ("detector", "fuser", "gps_publisher"):  # nodes that read the camera model
+    if executable in ("detector", "detector_managed", "fuser", "gps_publisher"):  # nodes that read the camera model
         return ["--ros-args", "--params-file", str(REPO_ROOT / "config" / "aitas_camera.yaml")]
     return ["--ros-args"]
 

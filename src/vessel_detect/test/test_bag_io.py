@@ -232,3 +232,63 @@ def test_single_mcap_file_and_folder_without_metadata(tmp_path):
     (tmp_path / "bag" / "metadata.yaml").unlink()  # e.g. a recording whose metadata was never written
     with bag_io.BagReader(tmp_path / "bag") as reader:
         assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3
+
+
+_KILLED_WRITER = """
+import os, sys
+from vessel_detect import bag_io, synthetic
+store = bag_io.typestore()
+writer = bag_io.BagWriter(sys.argv[1], atomic=False).open()
+writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+for k in range(13):
+    message = bag_io.compressed_image(1_601_494_000_000_000_000 + k * 40_000_000, synthetic.frame_jpeg(k))
+    writer.write(bag_io.DEFAULT_IMAGE_TOPIC, message)
+    if k == 9:
+        writer.flush()  # what flush_every_s does once a second
+os._exit(9)  # like kill -9: no close, no Python buffer flushed
+"""
+
+
+def test_a_writer_killed_without_closing_leaves_a_bag_that_recovers_to_its_last_flush(tmp_path):
+    """A recorder killed with -9 used to leave a 0-byte MCAP and no metadata.yaml: the whole recording lost."""
+    import subprocess
+    import sys
+
+    bag = tmp_path / "recording"
+    done = subprocess.run([sys.executable, "-c", _KILLED_WRITER, str(bag)], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 9, done.stderr
+    assert not (bag / "metadata.yaml").exists()
+    with pytest.raises(DataError):
+        bag_io.BagReader(bag)
+    salvage = bag_io.recover_bag(bag)
+    assert len(salvage.messages) == 10  # everything up to the last flush; the 3 after it are the bounded loss
+    assert (tmp_path / "recording.damaged.mcap").is_file()
+    with bag_io.BagReader(bag) as reader:
+        images = list(reader.images())
+    assert [data for _, data in images] == [synthetic.frame_jpeg(k) for k in range(10)]
+    assert yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["message_count"] == 10
+
+
+def test_a_bag_cut_in_half_gives_what_it_holds_and_says_where_it_stops(tmp_path):
+    path = tmp_path / "bag"
+    with bag_io.BagWriter(path, flush_every_s=1e-9) as writer:  # a chunk per message, as a recorder's bag has
+        writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+        for k in range(40):
+            writer.write(bag_io.DEFAULT_IMAGE_TOPIC,
+                         bag_io.compressed_image(1_601_494_000_000_000_000 + k * 40_000_000, synthetic.frame_jpeg(k)))
+    file = bag_io.mcap_file_of(path)
+    data = file.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    salvage = bag_io.salvage_mcap(cut)
+    assert salvage.stopped_at is not None and salvage.stopped_at <= len(data) // 2
+    assert "readable to byte" in salvage.describe() and "the rest is lost" in salvage.describe()
+    whole = bag_io.salvage_mcap(path)
+    assert whole.stopped_at is None and len(whole.messages) == 40
+    assert 0 < len(salvage.messages) < len(whole.messages)
+    assert [m.cdr for m in salvage.messages] == [m.cdr for m in whole.messages[:len(salvage.messages)]]
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(DataError, match="nothing readable"):
+        bag_io.salvage_mcap(empty)

@@ -164,3 +164,24 @@ def test_bad_source_exits_with_one_error_line(tmp_path):
     output, _ = process.communicate(timeout=60)
     assert process.returncode == 2
     assert "error: source" in output and "does not exist" in output and "Traceback" not in output
+
+
+def test_a_bag_cut_short_plays_what_it_holds_says_what_was_lost_and_exits_non_zero(tmp_path):
+    """A bag cut at 50 % played nothing, although half of it was intact."""
+    bag = tmp_path / "bag"
+    start = 1_601_494_000_000_000_000
+    with bag_io.BagWriter(bag, flush_every_s=1e-9) as writer:  # a chunk per message, as a recorder writes
+        writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+        for k in range(20):
+            writer.write(bag_io.DEFAULT_IMAGE_TOPIC,
+                         bag_io.compressed_image(start + k * 100_000_000, synthetic.frame_jpeg(k)))
+    file = bag_io.mcap_file_of(bag)
+    data = file.read_bytes()
+    file.write_bytes(data[: len(data) // 2])
+    readable = len(bag_io.salvage_mcap(bag).messages)
+    assert 0 < readable < 20
+    probe, status, output = replay(bag, "rate:=10.0")
+    assert status == 1, output
+    assert [b for _, b in probe.images] == [synthetic.frame_jpeg(k) for k in range(readable)]
+    assert "the source was damaged, the rest is lost" in output and "readable to byte" in output
+    assert "Traceback" not in output

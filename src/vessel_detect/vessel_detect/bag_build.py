@@ -393,13 +393,17 @@ def _parser() -> argparse.ArgumentParser:
             "  bag_build --data ../shared/aitas --videos 13-17 --out bags\n"
             "  bag_build --video boat.mp4 --start-utc 2024-05-01T10:00:00Z --gps track.gpx \\\n"
             "      --camera-lat 32.70297 --camera-lon -117.234631 --out bags\n"
-            "  bag_build --info bags/video_13"
+            "  bag_build --info bags/video_13\n"
+            "  bag_build --recover recording/video_13   # a recorder killed with -9"
         ),
     )
     mode = parser.add_argument_group("input (one of)")
     mode.add_argument("--data", type=Path, help="dataset folder like ../shared/aitas (default: $VESSEL_DATA)")
     mode.add_argument("--video", type=Path, help="a video file OpenCV reads (mp4, avi, mkv, ...)")
     mode.add_argument("--info", type=Path, nargs="+", metavar="BAG", help="print what bags hold and exit")
+    mode.add_argument("--recover", type=Path, metavar="BAG",
+                      help="make a bag whose writer died (or that was cut short) readable: every message up to "
+                      "where it breaks, rewritten with its index and metadata.yaml (in place, or to --out)")
     parser.add_argument("--videos", help="dataset videos, e.g. 13,14 or 7-12 (default: all)")
     parser.add_argument("--out", type=Path, help="folder for the bags (default: <repo>/bags)")
     parser.add_argument("--overwrite", action="store_true", help="replace bags that exist already")
@@ -497,6 +501,10 @@ def run(argv: list[str] | None = None) -> int:
         for path in args.info:
             print(bag_io.bag_info(path))
         return 0
+    if args.recover:
+        salvage = bag_io.recover_bag(args.recover, args.out)
+        print(f"recovered {args.out or args.recover}: {salvage.describe()}")
+        return 0 if salvage.stopped_at is None else 1
     if args.data is not None and args.video is not None:
         raise DataError("give either --data (a dataset folder) or --video (a video file), not both")
     options = _options(args)

@@ -15,6 +15,7 @@ import os
 import shutil
 import struct
 import tempfile
+import time
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -247,10 +248,13 @@ class BagWriter:
     does. Use as a context manager: leaving on an exception aborts and removes the partial output.
     """
 
-    def __init__(self, path: str | Path, *, overwrite: bool = False, atomic: bool = True) -> None:
+    def __init__(self, path: str | Path, *, overwrite: bool = False, atomic: bool = True,
+                 flush_every_s: float = 0.0) -> None:
         self.path = Path(path)
         self.overwrite = overwrite
         self.atomic = atomic
+        self.flush_every_s = float(flush_every_s)
+        self._last_flush = time.monotonic()
         if self.path.exists() and not overwrite:
             raise DataError(f"{self.path} exists already: pass --overwrite (overwrite=True) to replace it")
         self._store = typestore()
@@ -370,6 +374,23 @@ class BagWriter:
             raise DataError(f"log time {log_time_ns} ns on {topic} is negative")
         self._writer.write(connection, int(log_time_ns), cdr)
         self.counts[topic] += 1
+        if self.flush_every_s > 0 and time.monotonic() - self._last_flush >= self.flush_every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Put what was written so far on disk as a complete MCAP chunk.
+
+        A recorder killed with SIGKILL then loses at most ``flush_every_s`` of messages: the file lacks only its
+        summary, which ``recover_bag`` rebuilds (``./vessel bag recover``).
+        """
+        self._last_flush = time.monotonic()
+        storage = getattr(self._writer, "storage", None)
+        if storage is None or not hasattr(storage, "close_chunk"):
+            return
+        if storage.chunk.bio.tell():
+            storage.close_chunk()
+        storage.bio.flush()
+        os.fsync(storage.bio.fileno())
 
     def set_custom_data(self, key: str, value: str) -> None:
         """Store a key/value string in `metadata.yaml` (`custom_data`: provenance, e.g. the source video)."""
@@ -674,6 +695,159 @@ def iter_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Iterator
                 yield BagMessage(channel.topic, name, int(message.log_time), bytes(message.data))
     except (McapError, *_DAMAGE_ERRORS) as exc:
         raise DataError(f"bag file {file} is damaged ({exc}): {BUILD_HINT}") from exc
+
+
+@dataclass
+class Salvage:
+    """What a streaming read recovered from an MCAP file that may have been cut short."""
+
+    messages: list[BagMessage]
+    msgtypes: dict[str, str]          # topic -> message type
+    file: Path
+    size: int
+    stopped_at: int | None = None     # byte offset where the readable part ends (None: the whole file read)
+    reason: str = ""
+
+    def describe(self) -> str:
+        """One line: how much was read, and where and why it stopped."""
+        counts = ", ".join(f"{t} {sum(m.topic == t for m in self.messages)}" for t in sorted(self.msgtypes))
+        if self.stopped_at is None:
+            return f"{self.file}: read whole, {len(self.messages)} messages ({counts})"
+        return (f"{self.file}: readable to byte {self.stopped_at} of {self.size} ({self.reason}); "
+                f"{len(self.messages)} messages recovered ({counts or 'none'}), the rest is lost")
+
+
+def salvage_mcap(path: str | Path) -> Salvage:
+    """Every message of an MCAP file up to where it stops being readable (a writer killed, a copy cut short).
+
+    Reads record by record (chunks decompressed as they come) without the summary a killed writer never wrote.
+    """
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    file = mcap_file_of(path)
+    size = file.stat().st_size
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    messages: list[BagMessage] = []
+    stopped_at, reason = None, ""
+    with file.open("rb") as stream:
+        reader = StreamReader(stream, skip_magic=False)
+        try:
+            for record in reader.records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
+                    channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    topic, msgtype = channels[record.channel_id]
+                    messages.append(BagMessage(topic, msgtype, int(record.log_time), bytes(record.data)))
+        except Exception as exc:
+            stopped_at = stream.tell()
+            reason = f"{type(exc).__name__}: {exc}".rstrip(": ") or "cut short"
+    if not schemas and not messages:
+        raise DataError(f"{file}: nothing readable ({reason or 'empty'}); the writer died before its first flush")
+    messages.sort(key=lambda m: m.log_time_ns)
+    return Salvage(messages, {t: m for t, m in channels.values()}, file, size, stopped_at, reason)
+
+
+class SalvagedBagReader:
+    """The readable part of a damaged MCAP bag, read the way ``BagReader`` reads a whole one.
+
+    A bag cut short (a copy interrupted, a recorder killed) still plays what it holds; ``damage`` says what was
+    lost and where.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.salvage = salvage_mcap(self.path)
+        self.damage = self.salvage.describe() if self.salvage.stopped_at is not None else ""
+        self._store = typestore()
+
+    def close(self) -> None:
+        """Nothing is held open."""
+
+    def __enter__(self) -> SalvagedBagReader:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        return False
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """Topic name -> message type of what was recovered."""
+        return dict(self.salvage.msgtypes)
+
+    def message_count(self, topic: str | None = None) -> int:
+        """Recovered messages, or those of one topic."""
+        return sum(1 for m in self.salvage.messages if topic is None or m.topic == topic)
+
+    @property
+    def start_ns(self) -> int:
+        """Log time of the first recovered message (ns)."""
+        return self.salvage.messages[0].log_time_ns if self.salvage.messages else 0
+
+    @property
+    def end_ns(self) -> int:
+        """Log time of the last recovered message (ns)."""
+        return self.salvage.messages[-1].log_time_ns if self.salvage.messages else 0
+
+    def require_topic(self, topic: str, msgtypes: Iterable[str] | None = None) -> str:
+        """The type of ``topic``; ``DataError`` if the readable part has none of it, or another type."""
+        if topic not in self.salvage.msgtypes:
+            raise DataError(f"the readable part of bag {self.path} has no topic {topic} ({self.damage or 'whole'})")
+        msgtype = normalise_msgtype(self.salvage.msgtypes[topic])
+        allowed = [normalise_msgtype(m) for m in msgtypes] if msgtypes else []
+        if allowed and msgtype not in allowed:
+            raise DataError(f"topic {topic} in bag {self.path} is {msgtype}, expected {' or '.join(allowed)}")
+        return msgtype
+
+    def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
+                 stop_ns: int | None = None) -> Iterator[BagMessage]:
+        """Recovered messages in log-time order, optionally only some topics and a time window [start, stop)."""
+        wanted = set(topics) if topics is not None else None
+        for message in self.salvage.messages:
+            if wanted is not None and message.topic not in wanted:
+                continue
+            if (start_ns is not None and message.log_time_ns < start_ns) or (
+                    stop_ns is not None and message.log_time_ns >= stop_ns):
+                continue
+            yield message
+
+    def decode(self, message: BagMessage) -> object:
+        """Deserialise a recovered message; ``DataError`` for bytes that do not parse."""
+        msgtype = normalise_msgtype(message.msgtype)
+        _require_type(self._store, msgtype)
+        try:
+            return self._store.deserialize_cdr(message.cdr, msgtype)
+        except Exception as exc:
+            raise DataError(f"message on {message.topic} in {self.path} does not parse as {msgtype}: {exc}") from exc
+
+
+def recover_bag(path: str | Path, out: str | Path | None = None) -> Salvage:
+    """Rebuild a readable bag (MCAP with its summary, and metadata.yaml) from what ``salvage_mcap`` recovers.
+
+    ``out`` None replaces a bag folder in place; the damaged file is kept beside the folder as
+    ``<folder>.damaged.mcap``.
+    """
+    path = Path(path)
+    salvage = salvage_mcap(path)
+    if out is None:
+        if not path.is_dir():
+            raise DataError(f"{path}: give --out for a single .mcap file (in place works on a bag folder)")
+        kept = path.parent / f"{path.name}.damaged.mcap"
+        salvage.file.replace(kept)
+        salvage.file = kept
+        target = path
+    else:
+        target = Path(out)
+    with BagWriter(target, overwrite=True) as writer:
+        for topic, msgtype in salvage.msgtypes.items():
+            writer.add_topic(topic, msgtype)
+        for message in salvage.messages:
+            writer.write_cdr(message.topic, message.cdr, message.log_time_ns)
+        writer.set_custom_data("recovered_from", f"{salvage.file.name}: {salvage.describe()}")
+    return salvage
 
 
 def bag_info(path: str | Path) -> str:

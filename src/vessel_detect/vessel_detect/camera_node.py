@@ -91,6 +91,9 @@ class CameraNode(Node):
         self.exit_at_end = p["exit_at_end"] and not self.live
         self.total_frames = self.source.frame_count()
         self.health.set_value("source", self.source.description)
+        self.damage = getattr(self.source, "damage", "")
+        if self.damage:
+            self.health.problem("source_damaged", f"the source is damaged; playing what can be read: {self.damage}")
         self.health.set_value("rate", "live" if self.live else ("as consumed" if self.rate == 0 else self.rate))
 
         image_qos = image_qos_profile(p["image_qos"], reliable_depth=10)
@@ -427,8 +430,14 @@ class CameraNode(Node):
         )
         if self._stop.is_set():
             return
-        self.get_logger().info(summary)
-        self.health.set_status(DiagnosticStatus.OK, f"finished: {summary}")
+        if self.damage:
+            self.exit_status = 1
+            summary += f"; the source was damaged, the rest is lost: {self.damage}"
+            self.get_logger().error(summary)
+            self.health.set_status(DiagnosticStatus.ERROR, f"finished: {summary}")
+        else:
+            self.get_logger().info(summary)
+            self.health.set_status(DiagnosticStatus.OK, f"finished: {summary}")
         self.health.publish()
         if self.exit_at_end:
             self._stop.wait(self.params["end_linger_s"])

@@ -108,6 +108,10 @@ class RecorderNode(Node):
         self.depth = declare_parameter(
             self, "queue_depth", 100, "Subscription queue depth per topic.", int_range=(1, 100000)
         )
+        self.flush_period_s = declare_parameter(
+            self, "flush_period_s", 1.0, "Write what was received to disk this often (a recorder killed with -9 "
+            "loses at most this much; `./vessel bag recover` makes its bag readable); 0: only at the end, s.",
+            float_range=(0.0, 3600.0))
         self.plans = [parse_topic_entry(e) for e in entries if e.strip()]
         if not self.plans:
             raise DataError("parameter 'topics' is empty: name at least one topic to record")
@@ -117,7 +121,8 @@ class RecorderNode(Node):
         self.health = NodeHealth(self, hardware_id="recorder")
         self.health.count("messages", 0)
         self.health.set_value("output", str(self.output))
-        self.writer = bag_io.BagWriter(self.output, overwrite=self.overwrite, atomic=False).open()
+        self.writer = bag_io.BagWriter(self.output, overwrite=self.overwrite, atomic=False,
+                                       flush_every_s=self.flush_period_s).open()
         self.finished = False
         self._closed = False
         self._last_progress = time.monotonic()

@@ -308,7 +308,17 @@ class BagSource(ImageSource):
         super().__init__(**options)
         self.path = Path(path)
         self.description = f"bag {self.path}"
-        self.reader = bag_io.BagReader(self.path)
+        self.damage = ""
+        try:
+            self.reader = bag_io.BagReader(self.path)
+        except DataError as error:
+            if "damaged" not in str(error) and "truncated" not in str(error):
+                raise
+            try:  # a bag cut short plays what it holds; the node says what was lost and exits non-zero
+                self.reader = bag_io.SalvagedBagReader(self.path)
+            except DataError:
+                raise error from None
+            self.damage = self.reader.damage or f"{error}"
         self.image_topic = image_topic
         self.reader.require_topic(image_topic, [bag_io.COMPRESSED_IMAGE])
         if self.reader.message_count(image_topic) == 0:

@@ -336,8 +336,10 @@ def test_evidence_windows_are_validated(field, value):
 
 
 def test_a_history_is_continued_only_by_a_track_that_looks_the_same_way():
-    """Video 12 of training: a track that had followed another boat ended beside the vessel; without the rule the
-    vessel's new track took that boat's negative history (and could not become the target for a minute).
+    """A vessel's new track must not take the negative history of another boat that ended beside it.
+
+    Video 12 of training: without the rule the vessel's new track took that boat's history and could not become
+    the target for a minute.
     """
     def after_the_other_boat_ended(appearance_joins):
         selector = OnlineTargetSelector(_evidence_config(appearance_joins=appearance_joins))

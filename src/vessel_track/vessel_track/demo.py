@@ -208,6 +208,7 @@ class VideoRun:
     seconds: float
     recording: Path
     node_statuses: dict[str, int]
+    failed_nodes: tuple[str, ...] = ()
 
 
 def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, label_csv: Path | None,
@@ -259,6 +260,7 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
         expected = min(frames_expected, args.max_frames) if args.max_frames else frames_expected
         last_progress = time.monotonic()
         last_count = -1
+        failed_nodes: tuple[str, ...] = ()
         while watcher.tracks_received < expected:
             watcher.spin(0.2)
             if watcher.tracks_received != last_count:
@@ -271,7 +273,11 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
                     log(f"video {video}: {last_count}/{expected} frames through the graph")
             failed = runner.failed()
             if failed:
-                raise VesselError(f"node(s) {failed} failed during video {video}:\n{runner.log_tail(failed[0])}")
+                print(file=sys.stderr)
+                log(f"video {video}: node(s) {failed} failed after {watcher.tracks_received}/{expected} frames; "
+                    f"what was recorded is kept and scored. Its last lines:\n{runner.log_tail(failed[0])}")
+                failed_nodes = tuple(failed)
+                break
             idle = time.monotonic() - last_progress
             source_done = runner.running[source].process.poll() is not None
             if (source_done and idle > 5.0) or idle > args.frame_timeout:
@@ -286,12 +292,32 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
     finally:
         statuses = runner.stop()
         watcher.close()
-    return VideoRun(video, frames_expected, frames_out, time.monotonic() - started, recording, statuses)
+    return VideoRun(video, frames_expected, frames_out, time.monotonic() - started, recording, statuses,
+                    failed_nodes)
 
 
 # --------------------------------------------------------------------------------------------------------------
 # Outputs
 # --------------------------------------------------------------------------------------------------------------
+def readable_recording(run: VideoRun, log) -> bool:
+    """Whether a video's recording can be read; a recorder that died is recovered (``bag_io.recover_bag``) first."""
+    from vessel_calib.errors import DataError
+    from vessel_detect.bag_io import BagReader, recover_bag
+
+    try:
+        BagReader(run.recording).close()
+        return True
+    except DataError as error:
+        log(f"video {run.video}: the recording is not readable ({error}); recovering it")
+    try:
+        salvage = recover_bag(run.recording)
+    except DataError as error:
+        log(f"video {run.video}: nothing could be recovered ({error}); the video is left out of the scores")
+        return False
+    log(f"video {run.video}: {salvage.describe()}")
+    return True
+
+
 def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
     """``predictions.csv`` from /vessel/fix and ``tracks.csv`` from /vessel/tracks of the recorded bags.
 
@@ -465,6 +491,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
                 f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
             runs.append(run)
+        runs = [run for run in runs if readable_recording(run, log)]
+        if not runs:
+            raise VesselError("no video left a readable recording: see the logs in " + str(out / "logs"))
         predictions, tracks = export_recordings(runs, out)
         from vessel_track.demo_report import write_report
 
@@ -474,6 +503,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         log(f"outputs in {out}: predictions.csv, predictions_offline.csv, fixes.csv, tracks.csv, summary.json, "
             "plots, recording/")
+        failures = [f"video {run.video}: {', '.join(run.failed_nodes)}" for run in runs if run.failed_nodes]
+        failures += [f"video {video}: no readable recording" for video in videos
+                     if video not in {run.video for run in runs}]
+        if failures:
+            log("these failed, and the figures above lack what they would have given: " + "; ".join(failures))
+            return 1
         return 0
     except VesselError as error:
         print(f"error: {error}", file=sys.stderr)
