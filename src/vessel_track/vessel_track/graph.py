@@ -276,6 +276,14 @@ class GraphWatcher:
         links += [self.matched.get(topic, 0) >= n for topic, n in wanted.items()]
         return all(links)
 
+    def detector_connected(self) -> bool:
+        """The detector takes images and its detections reach a tracker (this host's or another's).
+
+        For a graph split across hosts: the camera and detector here, the tracking on another machine.
+        """
+        return (self.node.count_subscribers("/camera/image_raw/compressed") >= 1
+                and self.matched.get("/vessel/detections", 0) >= 1)
+
     def close(self) -> None:
         """Shut the watcher's context down."""
         self.node.destroy_node()
@@ -289,7 +297,8 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
     Raises VesselError naming the node that stopped meanwhile, or the time-out (``where``: where to look).
     """
     deadline = time.monotonic() + timeout_s
-    while not watcher.connected(**links):
+    detector_only = links.pop("detector_only", False)
+    while not (watcher.detector_connected() if detector_only else watcher.connected(**links)):
         watcher.spin(0.1)
         failed = runner.failed()
         if failed:
@@ -393,6 +402,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 finally:
                     watcher.close()
                 print("[graph] every link from the detector to the GPS publisher is matched", file=sys.stderr)
+            elif "detector" in wanted:  # the tracking runs elsewhere (another host or namespace)
+                watcher = GraphWatcher()
+                try:
+                    wait_until_connected(runner, watcher, args.connect_timeout, "is the tracker running and "
+                                         "reachable (same ROS_DOMAIN_ID and network)?", detector_only=True)
+                finally:
+                    watcher.close()
+                print("[graph] the detector's output is matched by a tracker", file=sys.stderr)
             overrides: dict[str, object] = {"use_sim_time": sim_time}
             if args.source:
                 overrides["source"] = args.source
