@@ -7,9 +7,10 @@ import sys
 
 import pytest
 
-pytestmark = [pytest.mark.ros, pytest.mark.data, pytest.mark.slow]
 
-
+@pytest.mark.ros
+@pytest.mark.data
+@pytest.mark.slow
 def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ros_env, tmp_path):
     """The camera starts only once every link from the detector to the GPS publisher is matched.
 
@@ -35,6 +36,9 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
         assert recorded.message_count(topic) == images, (topic, recorded.message_count(topic))
 
 
+@pytest.mark.ros
+@pytest.mark.data
+@pytest.mark.slow
 def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, ros_env, tmp_path):
     """``--respawn``: kill -9 the tracker mid-run; the runner restarts it and the graph publishes again."""
     import signal
@@ -72,3 +76,10 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
     fixes = BagReader(recording).message_count("/vessel/tracks")
     images = BagReader(bags / "video_15").message_count("/camera/image_raw/compressed")
     assert fixes >= images - 12, f"{fixes} frames out of the fuser for {images} images"
+
+
+def test_restarts_back_off():
+    from vessel_track.graph import MAX_RESTARTS, restart_delay_s
+
+    assert [restart_delay_s(k) for k in range(6)] == [0.0, 0.5, 1.0, 2.0, 4.0, 8.0]
+    assert restart_delay_s(20) == 8.0 and MAX_RESTARTS == 5

@@ -312,8 +312,8 @@ MAX_RESTARTS = 5
 
 
 def restart_delay_s(restarts: int) -> float:
-    """Back-off before restart number ``restarts + 1``: 0.5 s, then doubling, at most 8 s."""
-    return min(0.5 * 2.0 ** restarts, 8.0)
+    """Back-off before restart number ``restarts + 1``: at once the first time, then 0.5 s doubling to 8 s."""
+    return 0.0 if restarts == 0 else min(0.5 * 2.0 ** (restarts - 1), 8.0)
 
 
 def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) -> bool:
@@ -359,7 +359,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="use_sim_time of every node: auto (default) follows the replay's /clock for a recorded "
                         "source (bag, video, folder), so messages, /diagnostics and a --record are all in its time")
     parser.add_argument("--respawn", action="store_true",
-                        help="restart a node that dies (back-off 0.5 s doubling to 8 s, at most 5 times), as "
+                        help="restart a node that dies (at once, then after 0.5 s doubling to 8 s, at most 5 times), as "
                         "respawn:=true does for ros2 launch")
     parser.add_argument("--connect-timeout", type=float, default=60.0,
                         help="seconds to wait for every link of the graph to be matched before the camera starts "
