@@ -88,6 +88,18 @@ def executable_path(package: str, executable: str) -> Path:
     return INSTALL_DIR / package / "lib" / package / executable
 
 
+def interrupt(process: subprocess.Popen, timeout_s: float = 10.0) -> int:
+    """SIGINT like Ctrl-C, wait, kill if it hangs; the exit status."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+    return process.returncode
+
+
 class NodeProcess:
     """A node started as its own process, as ``ros2 run`` would; stopped with SIGINT like Ctrl-C."""
 
@@ -109,15 +121,9 @@ class NodeProcess:
 
     def stop(self, timeout_s: float = 10.0) -> int:
         """SIGINT, wait, and return the exit status (killing it if it hangs)."""
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
-            try:
-                self.process.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+        status = interrupt(self.process, timeout_s)
         self._log.close()
-        return self.process.returncode
+        return status
 
 
 @pytest.fixture

@@ -7,12 +7,13 @@ built with colcon on top of the project's environment, then sourced) and skips e
 from __future__ import annotations
 
 import shutil
-import signal
 import subprocess
 import sys
 import time
 
 import pytest
+
+from conftest import interrupt
 
 pytestmark = [pytest.mark.ros, pytest.mark.data, pytest.mark.slow]
 
@@ -71,13 +72,7 @@ def test_the_readme_launch_line_publishes_fixes_at_the_rate_given(managed, ros_e
         assert ("detector_managed" in output) == (managed == "true")
     finally:
         probe.destroy_node()
-        if launch.poll() is None:
-            launch.send_signal(signal.SIGINT)
-        try:
-            launch.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            launch.kill()
-            launch.wait()
+        interrupt(launch, 30.0)
         log.close()
     time.sleep(0.5)
 
