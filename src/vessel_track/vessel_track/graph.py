@@ -359,8 +359,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="use_sim_time of every node: auto (default) follows the replay's /clock for a recorded "
                         "source (bag, video, folder), so messages, /diagnostics and a --record are all in its time")
     parser.add_argument("--respawn", action="store_true",
-                        help="restart a node that dies (at once, then after 0.5 s doubling to 8 s, at most 5 times), as "
-                        "respawn:=true does for ros2 launch")
+                        help="restart a node that dies (at once, then after 0.5 s doubling to 8 s, at most 5 "
+                        "times), as respawn:=true does for ros2 launch")
     parser.add_argument("--connect-timeout", type=float, default=60.0,
                         help="seconds to wait for every link of the graph to be matched before the camera starts "
                         "(frames sent earlier would be lost)")
