@@ -155,6 +155,12 @@ def _wait_until(predicate, timeout_s: float, poll_s: float = 0.05, spin=None) ->
     return bool(predicate())
 
 
+@pytest.fixture(name="interrupt")
+def interrupt_fixture():
+    """``interrupt(process, timeout_s)``: SIGINT like Ctrl-C, wait, kill if it hangs; the exit status."""
+    return interrupt
+
+
 @pytest.fixture
 def wait_until():
     """``wait_until(predicate, timeout_s, spin=callable)``: poll instead of sleeping (DDS matching takes seconds)."""

@@ -13,8 +13,6 @@ import time
 
 import pytest
 
-from conftest import interrupt
-
 pytestmark = [pytest.mark.ros, pytest.mark.data, pytest.mark.slow]
 
 
@@ -41,7 +39,7 @@ def video_bag(data_dir, tmp_path_factory):
 
 @pytest.mark.parametrize("managed", ["false", "true"])
 def test_the_readme_launch_line_publishes_fixes_at_the_rate_given(managed, ros_env, ros_context, video_bag,
-                                                                  model_path, tmp_path, wait_until):
+                                                                  model_path, tmp_path, wait_until, interrupt):
     """managed:=true: the detector is a lifecycle node that the launch configures and activates."""
     reason = _launch_available()
     if reason:
