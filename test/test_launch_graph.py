@@ -67,7 +67,7 @@ def test_the_readme_launch_line_publishes_fixes_at_the_rate_given(managed, ros_e
         assert arrived and fixes, f"no /vessel/fix from the launch:\n{output[-3000:]}"
         assert f"publishing 36 frames of bag {video_bag} at 4x" in output  # rate:= took effect
         assert fixes[0].header.stamp.sec > 1_500_000_000
-        assert ("detector_managed" in output) == (managed == "true")
+        assert ("detector_managed" in output and "camera_managed" in output) == (managed == "true")
     finally:
         probe.destroy_node()
         interrupt(launch, 30.0)

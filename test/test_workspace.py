@@ -71,7 +71,7 @@ def test_vessel_msgs_is_indexed():
 
 def _node_arguments(package: str, executable: str, tmp_path: Path) -> list[str]:
     """The least a node needs to come up on a machine without the shared data."""
-    if (package, executable) == ("vessel_detect", "camera"):
+    if (package, executable) in (("vessel_detect", "camera"), ("vessel_detect", "camera_managed")):
         folder = tmp_path / "frames"
         folder.mkdir()
         for index in range(3):

@@ -23,6 +23,7 @@ setup(
     entry_points={
         "console_scripts": [
             "camera = vessel_detect.camera_node:main",
+            "camera_managed = vessel_detect.camera_node:main_managed",
             "detector = vessel_detect.detector_node:main",
             "detector_managed = vessel_detect.detector_node:main_managed",
             "bag_build = vessel_detect.bag_build:main",

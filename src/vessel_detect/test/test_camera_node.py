@@ -185,3 +185,84 @@ def test_a_bag_cut_short_plays_what_it_holds_says_what_was_lost_and_exits_non_ze
     assert [b for _, b in probe.images] == [synthetic.frame_jpeg(k) for k in range(readable)]
     assert "the source was damaged, the rest is lost" in output and "readable to byte" in output
     assert "Traceback" not in output
+
+
+def test_managed_camera_streams_only_while_active(tmp_path):
+    """Configure opens the source, activate streams it, deactivate stops, cleanup closes it, shutdown ends."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    synthetic.write_bag(tmp_path / "bag", frames=200, frame_step_s=0.1)
+    domain_id = random.randint(1, 100)
+    probe = Probe(domain_id)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    process = subprocess.Popen([str(CAMERA_EXE.with_name("camera_managed")), "--ros-args", "-p",
+                                f"source:={tmp_path / 'bag'}", "-p", "rate:=1.0", "-p", "wait_for_subscribers:=1"],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    change = probe.node.create_client(ChangeState, "/camera/change_state")
+    get = probe.node.create_client(GetState, "/camera/get_state")
+
+    def spin_until(predicate, timeout_s):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not predicate():
+            probe.executor.spin_once(timeout_sec=0.05)
+        return predicate()
+
+    def transition(transition_id):
+        future = change.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
+        assert spin_until(future.done, 30)
+        return future.result().success
+
+    def state():
+        future = get.call_async(GetState.Request())
+        assert spin_until(future.done, 30)
+        return future.result().current_state.label
+
+    try:
+        assert spin_until(lambda: change.service_is_ready() and get.service_is_ready(), 60)
+        assert state() == "unconfigured"
+        assert transition(Transition.TRANSITION_CONFIGURE) and state() == "inactive"
+        spin_until(lambda: False, 1.5)
+        assert probe.images == [], "an inactive camera published"
+        assert transition(Transition.TRANSITION_ACTIVATE) and state() == "active"
+        assert spin_until(lambda: len(probe.images) >= 5, 30), "the active camera published nothing"
+        assert transition(Transition.TRANSITION_DEACTIVATE) and state() == "inactive"
+        spin_until(lambda: False, 0.5)
+        count = len(probe.images)
+        spin_until(lambda: False, 1.5)
+        assert len(probe.images) == count, "a deactivated camera kept publishing"
+        assert transition(Transition.TRANSITION_CLEANUP) and state() == "unconfigured"
+        assert transition(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN) and state() == "finalized"
+    finally:
+        if process.poll() is None:
+            process.send_signal(2)
+        output, _ = process.communicate(timeout=30)
+        probe.close()
+    assert "Traceback" not in output
+
+
+def test_a_managed_camera_with_a_bad_source_fails_to_configure(tmp_path):
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    domain_id = random.randint(1, 100)
+    probe = Probe(domain_id)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    process = subprocess.Popen([str(CAMERA_EXE.with_name("camera_managed")), "--ros-args", "-p",
+                                f"source:={tmp_path / 'missing'}"], env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    change = probe.node.create_client(ChangeState, "/camera/change_state")
+    try:
+        deadline = time.monotonic() + 60
+        while not change.service_is_ready() and time.monotonic() < deadline:
+            probe.executor.spin_once(timeout_sec=0.05)
+        future = change.call_async(ChangeState.Request(transition=Transition(id=Transition.TRANSITION_CONFIGURE)))
+        while not future.done() and time.monotonic() < deadline:
+            probe.executor.spin_once(timeout_sec=0.05)
+        assert future.done() and not future.result().success
+        assert process.poll() is None
+    finally:
+        process.send_signal(2)
+        output, _ = process.communicate(timeout=30)
+        probe.close()
+    assert "configure failed" in output and "missing" in output and "Traceback" not in output

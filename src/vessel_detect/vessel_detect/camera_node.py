@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
@@ -51,13 +52,16 @@ class ReplayStats:
     late: int = 0
 
 
-class CameraNode(Node):
-    """Publish the frames of one source; see the module docstring."""
+class _CameraPhases:
+    """The camera node's work, phase by phase, shared by the plain node and the managed (lifecycle) one.
 
-    def __init__(self) -> None:
-        super().__init__("camera")
-        p = self._declare_parameters()
-        self.params = p
+    ``_declare`` (parameters, health reports), ``_configure`` (the source opened, the publishers made),
+    ``_activate`` (the replay thread started), ``_deactivate`` (stopped) and ``_cleanup`` (the source closed and
+    the publishers released).
+    """
+
+    def _declare(self) -> None:
+        self.params = self._declare_parameters()
         self.health = NodeHealth(self, hardware_id="camera")
         self.stats = ReplayStats()
         # Every key exists before the replay thread starts: the diagnostics timer iterates these dicts.
@@ -71,8 +75,19 @@ class CameraNode(Node):
         self._stop = threading.Event()
         self._ack = threading.Condition()
         self._acked_ns: int | None = None
+        self.source: ImageSource | None = None
+        self._worker: threading.Thread | None = None
+        self._publishers: list = []
+        self._ack_subscription = None
 
-        self.source: ImageSource = open_source(
+    def _make_publisher(self, message_type, topic: str, qos):
+        publisher = self.create_publisher(message_type, topic, qos)
+        self._publishers.append(publisher)
+        return publisher
+
+    def _configure(self) -> None:
+        p = self.params
+        self.source = open_source(
             p["source"],
             image_topic=p["image_topic"],
             aux_topics=[p["camera_fix_topic"], p["gps_truth_topic"]] if p["republish"] else [],
@@ -98,38 +113,62 @@ class CameraNode(Node):
 
         image_qos = image_qos_profile(p["image_qos"], reliable_depth=10)
         self.compressed_pub = (
-            self.create_publisher(CompressedImage, p["compressed_topic"], image_qos)
+            self._make_publisher(CompressedImage, p["compressed_topic"], image_qos)
             if p["publish_compressed"]
             else None
         )
-        self.raw_pub = self.create_publisher(Image, p["raw_topic"], image_qos) if p["publish_raw"] else None
-        self.clock_pub = self.create_publisher(Clock, "/clock", 10) if self.publish_clock else None
+        self.raw_pub = self._make_publisher(Image, p["raw_topic"], image_qos) if p["publish_raw"] else None
+        self.clock_pub = self._make_publisher(Clock, "/clock", 10) if self.publish_clock else None
         self.aux_pubs: dict[str, tuple[object, type]] = {}
-        self.camera_fix_pub = self.create_publisher(NavSatFix, p["camera_fix_topic"], LATCHED_QOS)
+        self.camera_fix_pub = self._make_publisher(NavSatFix, p["camera_fix_topic"], LATCHED_QOS)
         self.aux_pubs[p["camera_fix_topic"]] = (self.camera_fix_pub, NavSatFix)
         if p["republish"] and getattr(self.source, "aux_topics", None):
             if p["gps_truth_topic"] in self.source.aux_topics:
                 self.aux_pubs[p["gps_truth_topic"]] = (
-                    self.create_publisher(NavSatFix, p["gps_truth_topic"], reliable_qos(50)),
+                    self._make_publisher(NavSatFix, p["gps_truth_topic"], reliable_qos(50)),
                     NavSatFix,
                 )
         if self.rate == 0:
-            self.create_subscription(
+            self._ack_subscription = self.create_subscription(
                 message_class(p["ack_type"]), p["ack_topic"], self._on_ack, reliable_qos(10)
             )
+
+    def _activate(self) -> None:
+        p = self.params
         if p["camera_fix_from_parameters"] and p["camera_fix_topic"] not in getattr(self.source, "aux_topics", []):
             self._publish_parameter_fix()
-
         how = "live" if self.live else ("as fast as consumed" if self.rate == 0 else f"at {self.rate:g}x")
         count = f"{self.total_frames} frames" if self.total_frames else "frames"
         self.get_logger().info(
             f"publishing {count} of {self.source.description} {how}"
             f"{', with /clock' if self.publish_clock else ''}{', looping' if p['loop'] else ''}"
         )
+        self._stop.clear()
         self._worker = threading.Thread(target=self._run, name="camera-replay", daemon=True)
         self._worker.start()
 
-    # ------------------------------------------------------------------------------------------------ parameters
+    def _deactivate(self) -> None:
+        self._stop.set()
+        with self._ack:
+            self._ack.notify_all()
+        stop = getattr(self.source, "stop", None)
+        if stop is not None:
+            stop()
+        if self._worker is not None and self._worker.is_alive():
+            self._worker.join(timeout=2.0)
+        self._worker = None
+
+    def _cleanup(self) -> None:
+        if self.source is not None:
+            self.source.close()
+            self.source = None
+        for publisher in self._publishers:
+            self.destroy_publisher(publisher)
+        self._publishers = []
+        if self._ack_subscription is not None:
+            self.destroy_subscription(self._ack_subscription)
+            self._ack_subscription = None
+
     def _declare_parameters(self) -> dict:
         d = {}
 
@@ -445,18 +484,68 @@ class CameraNode(Node):
 
     def close(self) -> None:
         """Stop the replay thread and release the source (called by run_node at shutdown)."""
-        self._stop.set()
-        with self._ack:
-            self._ack.notify_all()
-        stop = getattr(self.source, "stop", None)
-        if stop is not None:
-            stop()
-        if self._worker.is_alive():
-            self._worker.join(timeout=2.0)
-        self.source.close()
+        self._deactivate()
+        if self.source is not None:
+            self.source.close()
+            self.source = None
+
+
+class CameraNode(_CameraPhases, Node):
+    """Publish the frames of one source; see the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__("camera")
+        self._declare()
+        self._configure()
+        self._activate()
+
+
+class ManagedCameraNode(_CameraPhases, LifecycleNode):
+    """The camera as a managed (lifecycle) node: ``ros2 run vessel_detect camera_managed``.
+
+    configure opens the source (a bad one fails the transition, logged, the node stays unconfigured) and makes the
+    publishers; activate starts streaming (a recorded source from its first frame); deactivate stops; cleanup
+    closes the source; shutdown from any state.
+    """
+
+    def __init__(self) -> None:
+        super().__init__("camera")
+        self._declare()
+
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        """Open the source and make the publishers."""
+        try:
+            self._configure()
+        except VesselError as error:
+            self.get_logger().error(f"configure failed: {error}")
+            self._cleanup()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        """Start streaming."""
+        self._activate()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        """Stop streaming (the source stays open)."""
+        self._deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        """Close the source and release the publishers."""
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        """Stop and release everything, from any state."""
+        self._deactivate()
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
 
 
 main = main_for(CameraNode)
+main_managed = main_for(ManagedCameraNode)
 
 if __name__ == "__main__":
     main()

@@ -3,8 +3,9 @@
 Arguments: ``params_file`` (graph parameters), ``calib_file`` (calibration written by ``calibrate``),
 ``source`` (camera source: bag folder, .mcap, video, image folder or device:N), ``rate`` (replay rate, 0 = as
 fast as the graph consumes), ``use_sim_time`` (``auto``: true when the source is a recording, whose stamps are
-the graph's time, false for a live device), ``respawn`` (restart a node that dies), ``managed`` (the detector
-as a lifecycle node, configured and activated by this launch: ``detector_managed``). The node list is
+the graph's time, false for a live device), ``respawn`` (restart a node that dies), ``managed`` (the camera and
+the detector as lifecycle nodes, configured and activated by this launch: ``camera_managed``,
+``detector_managed``). The node list is
 ``vessel_track.graph.GRAPH_NODES``, the same one ``./vessel graph`` starts on a pip-only install.
 
 The per-run values go on each node's command line as ``-p name:=value``: launch_ros would write them into a
@@ -41,7 +42,7 @@ def _nodes(context):
                       parameters=[values["params_file"], values["calib_file"]], ros_arguments=ros_arguments,
                       respawn=respawn and graph_node.name != "camera", respawn_delay=1.0, output="screen",
                       emulate_tty=True)
-        if graph_node.name == "detector" and values["managed"].lower() == "true":
+        if graph_node.name in ("camera", "detector") and values["managed"].lower() == "true":
             nodes += _managed(graph_node.executable + "_managed", common)
         else:
             nodes.append(Node(executable=graph_node.executable, **common))
@@ -80,8 +81,8 @@ def generate_launch_description():
                               description="follow /clock from the camera: true, false or auto (true for a "
                                           "recording, false for a live device)"),
         DeclareLaunchArgument("managed", default_value="false",
-                              description="run the detector as a lifecycle node that this launch configures and "
-                                          "activates (lifecycle services under /detector)"),
+                              description="run the camera and the detector as lifecycle nodes that this launch "
+                                          "configures and activates (lifecycle services under /camera, /detector)"),
         DeclareLaunchArgument("respawn", default_value="false",
                               description="restart a node (all but the camera) one second after it dies"),
         OpaqueFunction(function=_nodes),
