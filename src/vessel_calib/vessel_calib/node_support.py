@@ -466,6 +466,52 @@ def run_node(
     return status
 
 
+class PhasedLifecycle:
+    """Lifecycle callbacks for a node whose work is split into phases, as ros2/demos lifecycle_py lays them out.
+
+    The node defines ``_configure``, ``_activate``, ``_deactivate`` and ``_cleanup``; mix this in before
+    ``rclpy.lifecycle.LifecycleNode``. A configure that fails with a ``VesselError`` (a missing model, a bad
+    source) is logged and leaves the node unconfigured; shutdown works from any state.
+    """
+
+    def on_configure(self, state):
+        """Make what the node needs (``_configure``); FAILURE, logged, when it cannot."""
+        from rclpy.lifecycle import TransitionCallbackReturn
+
+        try:
+            self._configure()
+        except VesselError as error:
+            self.get_logger().error(f"configure failed: {error}")
+            self._cleanup()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state):
+        """Start the work (``_activate``); the lifecycle publishers start publishing."""
+        self._activate()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state):
+        """Stop the work (``_deactivate``); what was configured stays."""
+        self._deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state):
+        """Release what configure made (``_cleanup``)."""
+        from rclpy.lifecycle import TransitionCallbackReturn
+
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state):
+        """Stop and release everything, from any state."""
+        from rclpy.lifecycle import TransitionCallbackReturn
+
+        self._deactivate()
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+
 def wants_help(args: Sequence[str]) -> bool:
     """``-h`` / ``--help`` among the arguments that are not ROS arguments (a node must not start then)."""
     inside = False

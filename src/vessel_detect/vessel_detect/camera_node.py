@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
@@ -30,6 +30,7 @@ from vessel_calib.node_support import (
     DEFAULT_CAMERA_PARAMETERS,
     LATCHED_QOS,
     NodeHealth,
+    PhasedLifecycle,
     declare_parameter,
     image_qos_profile,
     main_for,
@@ -500,7 +501,7 @@ class CameraNode(_CameraPhases, Node):
         self._activate()
 
 
-class ManagedCameraNode(_CameraPhases, LifecycleNode):
+class ManagedCameraNode(PhasedLifecycle, _CameraPhases, LifecycleNode):
     """The camera as a managed (lifecycle) node: ``ros2 run vessel_detect camera_managed``.
 
     configure opens the source (a bad one fails the transition, logged, the node stays unconfigured) and makes the
@@ -511,37 +512,6 @@ class ManagedCameraNode(_CameraPhases, LifecycleNode):
     def __init__(self) -> None:
         super().__init__("camera")
         self._declare()
-
-    def on_configure(self, state: State) -> TransitionCallbackReturn:
-        """Open the source and make the publishers."""
-        try:
-            self._configure()
-        except VesselError as error:
-            self.get_logger().error(f"configure failed: {error}")
-            self._cleanup()
-            return TransitionCallbackReturn.FAILURE
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_activate(self, state: State) -> TransitionCallbackReturn:
-        """Start streaming."""
-        self._activate()
-        return super().on_activate(state)
-
-    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        """Stop streaming (the source stays open)."""
-        self._deactivate()
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
-        """Close the source and release the publishers."""
-        self._cleanup()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        """Stop and release everything, from any state."""
-        self._deactivate()
-        self._cleanup()
-        return TransitionCallbackReturn.SUCCESS
 
 
 main = main_for(CameraNode)

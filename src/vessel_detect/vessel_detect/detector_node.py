@@ -26,7 +26,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
 
@@ -34,6 +34,7 @@ from vessel_calib.errors import VesselError
 from vessel_calib.node_support import (
     SENSOR_DATA_QOS,
     NodeHealth,
+    PhasedLifecycle,
     declare_camera_model,
     declare_parameter,
     image_qos_profile,
@@ -310,7 +311,7 @@ class DetectorNode(_DetectorPhases, Node):
         self._activate()
 
 
-class ManagedDetectorNode(_DetectorPhases, LifecycleNode):
+class ManagedDetectorNode(PhasedLifecycle, _DetectorPhases, LifecycleNode):
     """The detector as a managed (lifecycle) node: ``ros2 run vessel_detect detector_managed``.
 
     unconfigured -> configure (the model is loaded, publishers made) -> inactive -> activate (images are taken
@@ -325,37 +326,6 @@ class ManagedDetectorNode(_DetectorPhases, LifecycleNode):
 
     def _make_publisher(self, message_type, topic: str, qos):
         return self.create_lifecycle_publisher(message_type, topic, qos)
-
-    def on_configure(self, state: State) -> TransitionCallbackReturn:
-        """Load the model and make the publishers; FAILURE (logged) leaves the node unconfigured."""
-        try:
-            self._configure()
-        except VesselError as error:
-            self.get_logger().error(f"configure failed: {error}")
-            self._cleanup()
-            return TransitionCallbackReturn.FAILURE
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_activate(self, state: State) -> TransitionCallbackReturn:
-        """Subscribe to the images and start the worker; the publishers start publishing."""
-        self._activate()
-        return super().on_activate(state)
-
-    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        """Stop taking images and stop the worker (the model stays loaded)."""
-        self._deactivate()
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
-        """Release the model and the publishers."""
-        self._cleanup()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        """Stop and release everything, from any state."""
-        self._deactivate()
-        self._cleanup()
-        return TransitionCallbackReturn.SUCCESS
 
 
 main = main_for(DetectorNode)
