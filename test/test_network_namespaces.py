@@ -89,4 +89,7 @@ def test_two_namespaces_publish_the_fixes_of_one_host(namespaces, data_dir, mode
     expected, got = np.array(_fixes(one_host), dtype=float), np.array(_fixes(split), dtype=float)
     assert len(expected) == 36
     # Bit-identical: the same stamps, positions and status (NO_FIX frames carry NaN positions on both).
+    missing = sorted(set(expected[:, 0]) - set(got[:, 0]))
+    assert not missing, (f"{len(missing)} of {len(expected)} frames never reached the tracking side: "
+                         f"{[int(m) for m in missing]} (first {int(expected[0, 0])}, last {int(expected[-1, 0])})")
     assert got.shape == expected.shape and np.array_equal(got, expected, equal_nan=True)

@@ -277,12 +277,14 @@ class GraphWatcher:
         return all(links)
 
     def detector_connected(self) -> bool:
-        """The detector takes images and its detections reach a tracker (this host's or another's).
+        """The detector takes images and has matched every reader of its detections the graph knows of.
 
-        For a graph split across hosts: the camera and detector here, the tracking on another machine.
+        For a graph split across hosts: the camera and detector here, the tracking (and perhaps a recorder) on
+        another machine; a first reader matched is not enough, the tracker may not be that one.
         """
-        return (self.node.count_subscribers("/camera/image_raw/compressed") >= 1
-                and self.matched.get("/vessel/detections", 0) >= 1)
+        readers = self.node.count_subscribers("/vessel/detections")  # every one the graph knows, here or there
+        return (self.node.count_subscribers("/camera/image_raw/compressed") >= 1 and readers >= 1
+                and self.matched.get("/vessel/detections", 0) >= readers)
 
     def close(self) -> None:
         """Shut the watcher's context down."""
@@ -298,7 +300,16 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
     """
     deadline = time.monotonic() + timeout_s
     detector_only = links.pop("detector_only", False)
-    while not (watcher.detector_connected() if detector_only else watcher.connected(**links)):
+    # Across hosts the readers are discovered one by one: the state must hold for a while, not for one look.
+    settle_s = 2.0 if detector_only else 0.0
+    connected_since = None
+    while True:
+        if watcher.detector_connected() if detector_only else watcher.connected(**links):
+            connected_since = connected_since if connected_since is not None else time.monotonic()
+            if time.monotonic() - connected_since >= settle_s:
+                return
+        else:
+            connected_since = None
         watcher.spin(0.1)
         failed = runner.failed()
         if failed:
