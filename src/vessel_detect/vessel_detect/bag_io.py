@@ -584,11 +584,7 @@ class BagReader:
                 f"bag {self.path} has no topic {topic} (it has: {have}); name the right topic in the parameters "
                 f"or {BUILD_HINT}"
             )
-        msgtype = self.topics[topic]
-        allowed = [normalise_msgtype(m) for m in msgtypes] if msgtypes else []
-        if allowed and msgtype not in allowed:
-            raise DataError(f"topic {topic} in bag {self.path} is {msgtype}, expected {' or '.join(allowed)}")
-        return msgtype
+        return _checked_type(self.path, topic, self.topics[topic], msgtypes)
 
     # -- messages
     def messages(
@@ -659,6 +655,14 @@ class BagReader:
                 -1, 9
             ),
         )
+
+
+def _checked_type(path: Path, topic: str, msgtype: str, msgtypes: Iterable[str] | None) -> str:
+    """``msgtype`` of ``topic``, or ``DataError`` when it is not one of ``msgtypes`` (None: any)."""
+    allowed = [normalise_msgtype(m) for m in msgtypes] if msgtypes else []
+    if allowed and msgtype not in allowed:
+        raise DataError(f"topic {topic} in bag {path} is {msgtype}, expected {' or '.join(allowed)}")
+    return msgtype
 
 
 def out_of_order_error(path: Path | str, topic: str, index: int, previous_ns: int, stamp_ns: int) -> DataError:
@@ -796,11 +800,7 @@ class SalvagedBagReader:
         """The type of ``topic``; ``DataError`` if the readable part has none of it, or another type."""
         if topic not in self.salvage.msgtypes:
             raise DataError(f"the readable part of bag {self.path} has no topic {topic} ({self.damage or 'whole'})")
-        msgtype = normalise_msgtype(self.salvage.msgtypes[topic])
-        allowed = [normalise_msgtype(m) for m in msgtypes] if msgtypes else []
-        if allowed and msgtype not in allowed:
-            raise DataError(f"topic {topic} in bag {self.path} is {msgtype}, expected {' or '.join(allowed)}")
-        return msgtype
+        return _checked_type(self.path, topic, normalise_msgtype(self.salvage.msgtypes[topic]), msgtypes)
 
     def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
                  stop_ns: int | None = None) -> Iterator[BagMessage]:
