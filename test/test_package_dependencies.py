@@ -21,8 +21,11 @@ ROSDEP_KEY = {
     "matplotlib": "python3-matplotlib", "onnxruntime": "python3-onnxruntime-pip", "mcap": "python3-mcap-pip",
     "rosbags": "python3-rosbags-pip", "filterpy": "python3-filterpy-pip",
 }
-OPTIONAL = {"torch", "onnx2torch", "onnx", "backports", "compression"}
-"""The training extra (requirements-train.txt) and version fallbacks imported inside try blocks."""
+OPTIONAL = {"torch", "onnx2torch", "onnx", "backports", "compression", "vessel_detect"}
+"""The training extra (requirements-train.txt), version fallbacks imported inside try blocks, and vessel_detect: the
+calibration tool runs its detector for a calibration without labels when it is installed (``calibrate --from
+detections``; an ImportError says so), and declaring it would make vessel_calib and vessel_detect depend on each
+other."""
 
 
 def _imports(package: str) -> set[str]:

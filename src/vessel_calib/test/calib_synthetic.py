@@ -52,3 +52,86 @@ def synthetic_pairs(cam: CameraModel, n: int, seed: int = 0, max_dist_m: float =
                 screen.append((x, y))
                 gps.append(cam.world_to_gps(a, b))
     return np.array(screen), np.array(gps)
+
+
+def _vessel_box(cam: CameraModel, xw: float, yw: float, anchor: float, rng) -> np.ndarray | None:
+    xs, ys, ok = cam.world_to_screen(np.array([xw]), np.array([yw]))
+    if not ok[0] or not cam.in_image(xs, ys)[0]:
+        return None
+    height = max(6.0, 1200.0 / max(math.hypot(xw, yw), 1.0))
+    x, y = xs[0] + rng.normal(0, 1.0), ys[0] + rng.normal(0, 1.0)
+    return np.array([x - 1.2 * height, y - anchor * height, x + 1.2 * height, y + (1 - anchor) * height])
+
+
+def search_frames(cam: CameraModel, seed: int = 0, runs: int = 5, frames_per_run: int = 24, miss_rate: float = 0.2,
+                  clutter: int = 5, dropout_rate: float = 0.15, anchor: float = 0.65, bearing_offset_deg: float = 0.0):
+    """Frames of a boat running out and in across ``cam``'s view, as a detector and a GPS logger would give them.
+
+    Each run goes from 30 m to 450 m and back along a bearing inside the view (``bearing_offset_deg`` turns them
+    all, e.g. 180 to put every run behind the camera); the boat's box is missed in ``miss_rate`` of the frames; each
+    frame has ``clutter`` boxes of other boats in the band below the horizon and one static box (a post); GPS drops
+    out in ``dropout_rate`` of the frames (they get NaN positions). Returns a list of ``FrameBoxes``.
+    """
+    from vessel_calib.gps_association import FrameBoxes
+
+    rng = np.random.default_rng(seed)
+    heading = cam.heading_deg
+    frames = []
+    stamp = 1.6e9
+    for run in range(runs):
+        bearing = math.radians(heading + bearing_offset_deg + (run - (runs - 1) / 2) * 12.0)
+        out = np.linspace(30.0, 450.0, frames_per_run // 2)
+        for k, dist in enumerate(np.concatenate([out, out[::-1] + 7.0])):
+            xw, yw = dist * math.sin(bearing) + 15.0 * math.sin(k), dist * math.cos(bearing)
+            boxes, scores = [], []
+            vessel = _vessel_box(cam, xw, yw, anchor, rng)
+            if vessel is not None and rng.random() > miss_rate:
+                boxes.append(vessel)
+                scores.append(rng.uniform(0.2, 0.8))
+            for _ in range(clutter):
+                x = rng.uniform(20, 1260)
+                y = cam.horizon_y(np.array([x]))[0] + rng.uniform(2, 200)
+                h = rng.uniform(6, 40)
+                boxes.append([x - h, y - h * anchor, x + h, y + h * (1 - anchor)])
+                scores.append(rng.uniform(0.1, 0.6))
+            boxes.append([800.0, 650.0, 860.0, 710.0])
+            scores.append(0.5)
+            lat, lon = cam.world_to_gps(xw, yw)
+            if rng.random() < dropout_rate:
+                lat = lon = math.nan
+            frames.append(FrameBoxes(run, k, stamp, float(lat), float(lon), np.array(boxes, dtype=float),
+                                     np.array(scores, dtype=float)))
+            stamp += 4.0
+    return frames
+
+
+def write_search_folder(folder, frames, camera_lat: float = CAMERA_LAT, camera_lon: float = CAMERA_LON):
+    """A data folder without labels, and a ``detect run`` CSV of ``search_frames`` output; returns the CSV's path.
+
+    The folder has camera.json, frames.csv and target_gps_fixes.csv; videos are numbered from 1, frames 0, 100...
+    """
+    import datetime
+    import json
+    from pathlib import Path
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "camera.json").write_text(json.dumps({"camera_lat": camera_lat, "camera_lon": camera_lon,
+                                                    "image_width": 1280, "image_height": 720}))
+    frame_rows = ["video,frame,utc,has_label,file"]
+    gps_rows = ["utc_s,lat,lon"]
+    box_rows = ["video,frame,x1,y1,x2,y2,score,class_id,p_target"]
+    for f in frames:
+        video, frame = f.video + 1, f.frame * 100
+        utc = datetime.datetime.fromtimestamp(f.stamp, datetime.UTC)
+        frame_rows.append(f"{video},{frame},{utc.strftime('%Y-%m-%dT%H:%M:%S.%f')[:-3]}Z,0,")
+        if math.isfinite(f.lat):
+            seconds_of_day = f.stamp % 86400.0
+            gps_rows += [f"{seconds_of_day + dt:.3f},{f.lat!r},{f.lon!r}" for dt in (-0.5, 0.5)]
+        for (x1, y1, x2, y2), score in zip(f.boxes, f.scores, strict=True):
+            box_rows.append(f"{video},{frame},{x1:.2f},{y1:.2f},{x2:.2f},{y2:.2f},{score:.3f},8,")
+    (folder / "frames.csv").write_text("\n".join(frame_rows) + "\n")
+    (folder / "target_gps_fixes.csv").write_text("\n".join(gps_rows) + "\n")
+    detections = folder / "detections.csv"
+    detections.write_text("\n".join(box_rows) + "\n")
+    return detections

@@ -297,3 +297,12 @@ def test_a_fit_with_few_pairs_warns_and_gives_a_leave_one_out_figure(tmp_path, c
     assert status == 0, err
     assert "warning: only 6 pairs, 3 degree(s) of freedom left" in stdout
     assert "each pair back-projected by a fit of the others: median" in stdout
+
+
+def test_ros_parameters_reach_options_whose_flag_differs_from_their_name():
+    # --from stores into pairs_from; -p pairs_from:=... must reach it, and -p from:=... is not a parameter name.
+    assert calibrate_node._ros_params_to_cli(["--ros-args", "-p", "pairs_from:=detections", "-p",
+                                              "max_camera_offset:=20"]) == ["--from", "detections",
+                                                                            "--max-camera-offset", "20"]
+    with pytest.raises(calibrate_node.CalibrationError, match="unknown parameter 'from'"):
+        calibrate_node._ros_params_to_cli(["--ros-args", "-p", "from:=detections"])

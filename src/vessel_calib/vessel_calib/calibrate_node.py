@@ -7,6 +7,10 @@ ROS graph. Inputs, one of:
   primary boxes with ``gps_ok=1`` (labels of the same frame averaged), each read at its horizontal centre,
   ``--box-anchor`` of the way down (default 0.65, chosen on the training videos; 0.5 is the paper's centre);
   ``--label-passes all`` also averages in the second labelling pass (``primary=0``) of the same frames.
+* ``--data DIR`` without ``screen_labels.csv`` (or ``--from detections``): no labels; the vessel is found among
+  the boats a generic detector finds, as the one its GPS track explains (``vessel_calib.gps_association``);
+  ``--from both`` adds such pairs to the labelled ones. ``--video FILE --start-utc T --gps TRACK``: the same from a
+  video file and a GPS track.
 * ``--pairs-csv FILE``: columns ``x,y,lat,lon`` (or ``x1,y1,x2,y2`` box corners instead of ``x,y``), or
   ``x,y,t`` with ``--gps FILE`` (CSV or GPX fixes, interpolated at ``t``; ``t`` in the same clock as the fixes:
   epoch seconds or ISO-8601), with ``--camera-lat/--camera-lon`` and ``--image-size``.
@@ -45,6 +49,7 @@ if TYPE_CHECKING:
 # SIGINT, so Ctrl-C during start-up still ends with "interrupted, nothing written" instead of a traceback.
 
 DEFAULT_TRAIN_VIDEOS = "7-12"
+PAIR_SOURCES = ("auto", "labels", "detections", "both")
 DEFAULT_EVAL_VIDEOS = "13-17"
 
 _X_NAMES = ("x", "xs", "x_s", "screen_x", "u")
@@ -65,6 +70,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
     from vessel_calib.calibration import DEFAULT_BOX_ANCHOR, LOSSES
+    from vessel_calib.gps_association import SearchOptions
 
     p = _Parser(prog="calibrate", description=__doc__.split("\n\n")[0],
                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -80,8 +86,20 @@ def build_parser() -> argparse.ArgumentParser:
                           "file as camera.box_anchor, so the fuser reads boxes the same way")
     src.add_argument("--label-passes", choices=("primary", "all"), default="primary",
                      help="data folder: average only primary labels per frame, or all labelling passes")
+    src.add_argument("--from", dest="pairs_from", choices=PAIR_SOURCES, default="auto",
+                     help="where the data folder's (screen, GPS) pairs come from: labels (screen_labels.csv), "
+                          "detections (no labels: the vessel is found among detected boats as the one its GPS track "
+                          "explains), both (labelled frames keep their label); auto (default): labels if the folder "
+                          "has screen_labels.csv, else detections")
+    src.add_argument("--labels", dest="pairs_from", action="store_const", const="labels",
+                     help="same as --from labels")
     src.add_argument("--pairs-csv", help="CSV of labelled pairs: x,y,lat,lon or x,y,t (with --gps)")
-    src.add_argument("--gps", help="GPS fixes (CSV or GPX) to look up the position at each pair's t")
+    src.add_argument("--gps", help="GPS fixes (CSV or GPX) to look up the position at each pair's t (--pairs-csv) "
+                                   "or each frame's time (--video)")
+    src.add_argument("--video", help="a video file of the camera (instead of --data): calibrated without labels from "
+                                     "the boats detected in it and the --gps track of one of them")
+    src.add_argument("--start-utc", help="--video: UTC time of its first frame (ISO-8601 or epoch seconds)")
+    src.add_argument("--every", type=int, default=25, help="--video: use one frame in N (default 25)")
     src.add_argument("--max-gap-s", type=float, default=3.0, help="longest GPS gap to interpolate across (s)")
     src.add_argument("--water-level", metavar="CSV",
                      help="water level (tide) against time (utc or utc_s, level_m): the fit allows for the camera's "
@@ -106,6 +124,20 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--picture", help="calibration picture PNG (default next to the YAML)")
     out.add_argument("--no-picture", action="store_true", help="do not draw the picture")
     out.add_argument("--frame", help="camera frame to draw the picture on (default: a frame of the data set)")
+    search = p.add_argument_group("without labels (--from detections, --video)")
+    search.add_argument("--detections", help="a `detect run` CSV of the data folder's frames (default: run the "
+                                             "generic COCO detector over the whole frames)")
+    search.add_argument("--detector-params", help="parameter YAML of that detector (default "
+                                                  "config/detector_coco.yaml; its cue and masks are left out)")
+    search.add_argument("--save-detections", help="write the detector's boxes to this CSV (re-use with --detections)")
+    search.add_argument("--hypotheses", type=int, default=SearchOptions.hypotheses,
+                        help=f"camera hypotheses of the consensus search (default {SearchOptions.hypotheses})")
+    search.add_argument("--min-associations", type=int, default=SearchOptions.min_associations,
+                        help="refuse a fit resting on fewer frames whose vessel box was found (default "
+                             f"{SearchOptions.min_associations})")
+    search.add_argument("--max-camera-offset", type=float, default=SearchOptions.max_nadir_m,
+                        help="refuse a camera standing further than this from --camera-lat/--camera-lon, m (default "
+                             f"{SearchOptions.max_nadir_m:g})")
     study = p.add_argument_group("study")
     study.add_argument("--evaluate-on", help="videos to evaluate on (e.g. 13-17): validation figures")
     study.add_argument("--draws", type=int, help="repeat the fit on this many random draws of --pairs pairs")
@@ -195,10 +227,11 @@ def _param_to_option(name: str, value: str) -> list[str]:
         if value.lower() in ("false", "0", "no", ""):
             return []
         return ["--robust"] if value.lower() in ("true", "1", "yes") else ["--robust", value]
-    known = {a.dest for a in build_parser()._actions}
-    if key not in known:
+    options = {a.dest: a.option_strings[-1] for a in build_parser()._actions
+               if a.option_strings and a.option_strings[-1].startswith("--") and a.nargs != 0}
+    if key not in options:
         raise CalibrationError(f"unknown parameter {name!r}; see calibrate --help for the options (use_ in names)")
-    return [f"--{key.replace('_', '-')}", value]
+    return [options[key], value]
 
 
 # --------------------------------------------------------------------------- inputs
@@ -352,7 +385,7 @@ def run(args) -> int:
 
     ds = None
     data_dir = args.data
-    if not data_dir and not args.pairs_csv:
+    if not data_dir and not args.pairs_csv and not args.video:
         found = default_data_dir()
         if found is None:
             print("calibrate: nothing to do. Give --data DIR (a folder like ../shared/aitas) or --pairs-csv FILE "
@@ -377,19 +410,54 @@ def run(args) -> int:
                                f"1 bottom), got {args.box_anchor}")
     notes: list[str] = []
     videos = None
-    if args.pairs_csv:
+    association = None
+    picture_frame = None
+    water_level = None
+    if args.water_level:
+        from vessel_calib.water_level import load_water_level
+
+        water_level = load_water_level(args.water_level)
+    if args.video:
+        if args.data or args.pairs_csv:
+            raise CalibrationError("--video replaces --data and --pairs-csv: give one of them")
+        association, picture_frame, image_size = _search_video(args, camera_lat, camera_lon, args.center,
+                                                               water_level)
+        center = _parse_center(args.center, image_size)
+        screen, gps, stamps = association.pairs(args.box_anchor)
+        source = f"video {args.video} without labels ({association.associated} frames associated)"
+        name = Path(args.video).stem
+    elif args.pairs_csv:
         screen, gps, notes, stamps = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s, args.box_anchor)
         source = f"pairs {args.pairs_csv}"
         name = Path(args.pairs_csv).stem
     else:
-        videos = parse_videos(args.videos or DEFAULT_TRAIN_VIDEOS)
-        screen, gps, stamps = ds.calibration_pairs(videos, anchor=args.box_anchor, label_passes=args.label_passes,
-                                                   with_stamps=True)
-        source = f"{ds.path} videos {args.videos or DEFAULT_TRAIN_VIDEOS} ({args.label_passes} labels)"
+        spec = args.videos or DEFAULT_TRAIN_VIDEOS
+        videos = parse_videos(spec)
+        pairs_from = _pairs_source(args.pairs_from, ds)
         name = ds.path.name
-        if len(screen) == 0:
-            raise DataError(
-                f"{ds.path}: no labelled pairs with gps_ok=1 in videos {args.videos or DEFAULT_TRAIN_VIDEOS}")
+        screen = gps = stamps = np.zeros((0, 2))
+        if pairs_from in ("labels", "both"):
+            screen, gps, stamps = ds.calibration_pairs(videos, anchor=args.box_anchor,
+                                                       label_passes=args.label_passes, with_stamps=True)
+            source = f"{ds.path} videos {spec} ({args.label_passes} labels)"
+            if len(screen) == 0:
+                raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {spec}"
+                                + ("" if pairs_from == "labels" else "; use --from detections"))
+        if pairs_from in ("detections", "both"):
+            association = _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center, water_level)
+            found_screen, found_gps, found_stamps, keys = association.pairs(args.box_anchor, with_keys=True)
+            if pairs_from == "both":
+                labelled = {(lab.video, lab.frame) for lab in ds.labels(videos, args.label_passes == "primary")
+                            if lab.gps_ok}
+                extra = np.array([key not in labelled for key in keys], dtype=bool)
+                screen = np.vstack([screen, found_screen[extra]])
+                gps = np.vstack([gps, found_gps[extra]])
+                stamps = np.concatenate([stamps, found_stamps[extra]])
+                source += f" and {int(extra.sum())} frames without a label associated from detections"
+            else:
+                screen, gps, stamps = found_screen, found_gps, found_stamps
+                source = (f"{ds.path} videos {spec} without labels ({association.associated} frames associated "
+                          "from detections)")
     available = len(screen)
     all_screen, all_gps = screen, gps
     if args.pairs is not None:
@@ -403,12 +471,8 @@ def run(args) -> int:
         source += f", random draw of {args.pairs} (seed {args.seed})"
 
     options = _fit_options(args)
-    water_level = None
     levels = None
-    if args.water_level:
-        from vessel_calib.water_level import load_water_level
-
-        water_level = load_water_level(args.water_level)
+    if water_level is not None:
         if not np.all(np.isfinite(stamps)):
             raise CalibrationError("--water-level needs the time of every pair: give the pairs CSV a time column t "
                                    "(epoch seconds or ISO-8601 UTC)")
@@ -429,6 +493,8 @@ def run(args) -> int:
     print(f"calibrate: fitted on {source}: {len(screen)} of {available} pairs", flush=True)
     for note in notes:
         print(f"  note: {note}")
+    if association is not None:
+        print("\n".join(association.report_lines()), flush=True)
     print("\n".join(result.report_lines()), flush=True)
     if len(screen) < FEW_PAIRS:
         dof = degrees_of_freedom(len(screen), result.options.fit_k1 and result.options.k1_fixed is None)
@@ -479,8 +545,110 @@ def run(args) -> int:
         raise CalibrationError(f"--out must be a .yaml file, got {out}")
     picture = None if args.no_picture else Path(args.picture) if args.picture else out.with_suffix(".png")
     header = _yaml_header(result, source, sys.argv)
-    _commit(result, out, picture, header, args.frame or _picture_frame(ds, videos), eval_pairs, source)
+    overlay = {}
+    if association is not None:
+        overlay = {"boxes": association.boxes(), "track_gps": association.track_gps(),
+                   "pair_label": "associated detections (fit pairs)"}
+    _commit(result, out, picture, header, args.frame or picture_frame or _picture_frame(ds, videos), eval_pairs,
+            source, overlay)
     return 0
+
+
+def _search_options(args):
+    from vessel_calib.gps_association import SearchOptions
+
+    return SearchOptions(box_anchor=args.box_anchor, seed=args.seed, hypotheses=args.hypotheses,
+                         min_associations=args.min_associations, max_nadir_m=args.max_camera_offset).checked()
+
+
+def _pairs_source(requested: str, ds) -> str:
+    if requested != "auto":
+        return requested
+    return "labels" if (ds.path / "screen_labels.csv").is_file() else "detections"
+
+
+def _levels_of(water_level, frames):
+    import numpy as np
+
+    if water_level is None:
+        return None
+    stamps = np.array([f.stamp for f in frames], dtype=float)
+    levels = water_level.level_at(stamps)
+    if not np.all(np.isfinite(levels)):
+        raise CalibrationError(f"{int(np.sum(~np.isfinite(levels)))} frame(s) fall outside the water-level file "
+                               f"{water_level.source} ({_utc(water_level.start_s)} to {_utc(water_level.end_s)}); "
+                               "extend the file to cover them")
+    return levels
+
+
+def _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center, water_level):
+    """The label-free association over a data folder's frames (detector boxes + the vessel's GPS)."""
+    from vessel_calib.gps_association import associate_and_calibrate
+
+    frame_boxes = _frame_boxes_module()
+    frames, without_gps = frame_boxes.dataset_frame_boxes(ds, videos, args.detections, args.detector_params,
+                                                          args.max_gap_s, args.save_detections)
+    print(f"calibrate: {len(frames)} frames of videos {args.videos or DEFAULT_TRAIN_VIDEOS} with a GPS fix of the "
+          f"vessel ({without_gps} without one, left out); searching for the camera", flush=True)
+    return associate_and_calibrate(frames, camera_lat, camera_lon, image_size, center, _search_options(args),
+                                   _fit_options(args), _levels_of(water_level, frames))
+
+
+def _search_video(args, camera_lat, camera_lon, center_text, water_level):
+    """The label-free association over a video file's frames; (association, a saved frame, image size)."""
+    from vessel_calib.gps_association import associate_and_calibrate
+    from vessel_calib.gps_track import GpsTrack, parse_time
+
+    if not args.gps or not args.start_utc:
+        raise CalibrationError("--video needs --gps TRACK (CSV or GPX of the boat in view) and --start-utc TIME (the "
+                               "video's first frame, ISO-8601 UTC or epoch seconds)")
+    try:
+        start = parse_time(args.start_utc)
+    except ValueError:
+        raise CalibrationError(f"--start-utc {args.start_utc!r} is not a time: give ISO-8601 UTC "
+                               "(2024-05-01T10:00:00Z) or epoch seconds") from None
+    if args.every < 1:
+        raise CalibrationError(f"--every must be at least 1, got {args.every}")
+    if args.detections:
+        raise CalibrationError("--detections applies to --data folders; with --video the detector runs on the video's "
+                               "frames (--save-detections keeps its boxes)")
+    track = GpsTrack.from_file(args.gps)
+    if len(track) < 2:
+        raise DataError(f"{args.gps}: fewer than 2 usable GPS fixes")
+    frame_boxes = _frame_boxes_module()
+    frames, without_gps, first_image = frame_boxes.video_frame_boxes(
+        args.video, start, track, args.every, args.max_gap_s, args.detector_params, args.save_detections)
+    image_size = _parse_size(args.image_size, (first_image.shape[1], first_image.shape[0]))
+    frame_file = _temporary_frame(first_image)
+    print(f"calibrate: {len(frames)} frames of {args.video} with a GPS fix ({without_gps} without one, left out); "
+          "searching for the camera", flush=True)
+    center = _parse_center(center_text, image_size)
+    association = associate_and_calibrate(frames, camera_lat, camera_lon, image_size, center, _search_options(args),
+                                          _fit_options(args), _levels_of(water_level, frames))
+    return association, frame_file, image_size
+
+
+def _temporary_frame(image) -> Path:
+    """``image`` saved as a JPEG for the picture, removed when the process ends."""
+    import atexit
+    import tempfile
+
+    import cv2
+
+    fd, name = tempfile.mkstemp(prefix="calibrate_frame_", suffix=".jpg")
+    os.close(fd)
+    cv2.imwrite(name, image)
+    atexit.register(lambda: Path(name).unlink(missing_ok=True))
+    return Path(name)
+
+
+def _frame_boxes_module():
+    try:
+        from vessel_detect import frame_boxes
+    except ImportError as exc:
+        raise CalibrationError(f"calibrating without labels needs the vessel_detect package (its detector): {exc}; "
+                               "build the workspace (./vessel setup)") from None
+    return frame_boxes
 
 
 def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
@@ -506,7 +674,7 @@ _WRITTEN: list[Path] = []
 _INTERRUPTED: list[bool] = []
 
 
-def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pairs, source) -> None:
+def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pairs, source, overlay=None) -> None:
     """Draw the picture into a temporary file, then move it and write the YAML with SIGINT held off.
 
     Either both files appear complete or neither does (an interrupt before the commit leaves nothing behind).
@@ -521,7 +689,7 @@ def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pa
             picture.parent.mkdir(parents=True, exist_ok=True)
             tmp_picture = picture.with_name(f".{picture.stem}.partial.png")
             render_calibration_picture(tmp_picture, result, frame, title=f"calibration from {source}",
-                                       extra_points=eval_pairs)
+                                       extra_points=eval_pairs, **(overlay or {}))
         old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             write_camera_yaml(out, result.model, header=header)

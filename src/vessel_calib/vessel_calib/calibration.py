@@ -473,7 +473,7 @@ def pair_weights(world: np.ndarray, far_weight: float) -> np.ndarray:
 
 def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(1280, 720), center=None,
               options: FitOptions | None = None, box_anchor: float = PAPER_BOX_ANCHOR,
-              water_levels=None) -> CalibrationResult:
+              water_levels=None, drop_beyond_horizon: bool = False) -> CalibrationResult:
     """Fit a CameraModel from labelled pairs: ``screen`` (N,2) pixels, ``gps`` (N,2) lat/lon degrees.
 
     ``box_anchor`` says where down its box each screen point was taken (0.5: box centres); the model carries
@@ -484,8 +484,13 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
     (``CameraModel.from_water_level``, with the camera height H implies; three rounds), and carries that level.
 
     Raises CalibrationError for unusable input (see ``validate_pairs``) and when a pair lands on or above the
-    fitted horizon (a label in the sky, or a wrong GPS match): nothing is returned then.
+    fitted horizon (a label in the sky, or a wrong GPS match): nothing is returned then. With
+    ``drop_beyond_horizon`` such pairs are left out and the fit repeated instead (for pairs that were matched
+    automatically, where a few wrong matches are expected); the result holds the pairs kept.
     """
+    if drop_beyond_horizon:
+        return _calibrate_dropping(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor,
+                                   water_levels)
     if water_levels is not None:
         return _calibrate_at_water_levels(screen, gps, camera_lat, camera_lon, image_size, center, options,
                                           box_anchor, water_levels)
@@ -534,18 +539,46 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
     if not valid.all():
         bad = np.flatnonzero(~valid)
         listed = ", ".join(f"#{i} ({screen[i, 0]:.0f}, {screen[i, 1]:.0f})" for i in bad[:5])
-        raise CalibrationError(
+        raise _BeyondHorizonError(
             f"{bad.size} pair(s) land on or above the fitted horizon ({listed}): labels in the sky, on land, or "
-            "matched to the wrong GPS time; remove them (or use --robust) and re-run")
+            "matched to the wrong GPS time; remove them (or use --robust) and re-run", bad)
     xs, ys, in_front = model.world_to_screen(world[:, 0], world[:, 1])
     if not in_front.all():
         i = int(np.flatnonzero(~in_front)[0])
-        raise CalibrationError(f"pair {i}: its GPS position falls behind the fitted camera; check that pair")
+        raise _BeyondHorizonError(f"pair {i}: its GPS position falls behind the fitted camera; check that pair",
+                             np.flatnonzero(~in_front))
     figures = evaluate(model, screen, gps)
     return CalibrationResult(
         model=model, options=options, screen=screen, gps=gps, world=world,
         reproj_px=np.column_stack([xs, ys]) - screen, backproj_m=_backproj_errors(model, screen, gps),
         figures=figures, k1_scan=(k1_values, losses), scan_k1=k1_scan_best, nfev=nfev)
+
+
+def _calibrate_dropping(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor, water_levels,
+                        rounds: int = 4) -> CalibrationResult:
+    screen = _as_pairs(screen, "screen points")
+    gps = _as_pairs(gps, "GPS positions", len(screen))
+    levels = None if water_levels is None else _pair_levels(water_levels, len(screen))
+    keep = np.ones(len(screen), dtype=bool)
+    for _ in range(rounds):
+        try:
+            return calibrate(screen[keep], gps[keep], camera_lat, camera_lon, image_size, center, options,
+                             box_anchor, None if levels is None else levels[keep])
+        except _BeyondHorizonError as exc:
+            kept = np.flatnonzero(keep)
+            keep[kept[exc.indices]] = False
+            if keep.sum() < MIN_PAIRS_FOR_K1:
+                raise CalibrationError(f"only {int(keep.sum())} pairs stay below the fitted horizon") from None
+    raise CalibrationError(f"pairs still land on or above the fitted horizon after {rounds} rounds of leaving "
+                           "them out: the matches are inconsistent")
+
+
+class _BeyondHorizonError(CalibrationError):
+    """Pairs the fitted camera cannot see (on or above its horizon, or behind it); ``indices`` names them."""
+
+    def __init__(self, message: str, indices: np.ndarray):
+        super().__init__(message)
+        self.indices = indices
 
 
 #: Fewer pairs than this get a leave-one-pair-out figure in the calibration tool's report.

@@ -48,7 +48,7 @@ def _load_frame(frame_path, model: CameraModel):
 
 
 def _draw_overlay(ax, model: CameraModel, result: CalibrationResult, image, proj, extra_points, grid_step_m: float,
-                  zoomed: bool) -> None:
+                  zoomed: bool, boxes=None, track_gps=None, pair_label: str = "labelled (fit pairs)") -> None:
     """Frame, sea grid, distance rings, horizon and labelled-vs-projected points on one axis."""
     width, height = model.image_size
     ax.imshow(image, extent=(0, image.shape[1], image.shape[0], 0), aspect="auto" if zoomed else "equal")
@@ -77,8 +77,16 @@ def _draw_overlay(ax, model: CameraModel, result: CalibrationResult, image, proj
     ax.plot(hx, model.horizon_y(hx), color="orange", lw=1.5, label="fitted horizon")
     for (x0, y0), (x1, y1) in zip(result.screen, proj, strict=True):
         ax.plot([x0, x1], [y0, y1], color="lime", lw=1.2)
-    ax.scatter(result.screen[:, 0], result.screen[:, 1], s=18, c="dodgerblue", label="labelled (fit pairs)",
-               zorder=3)
+    if track_gps is not None and len(track_gps):
+        tx, ty, in_front = model.gps_to_screen(track_gps[:, 0], track_gps[:, 1])
+        tx, ty = np.where(in_front, tx, np.nan), np.where(in_front, ty, np.nan)
+        ax.plot(tx, ty, ".", color="yellow", ms=3, alpha=0.8, label="GPS track projected (every frame)")
+    if boxes is not None and len(boxes):
+        from matplotlib.patches import Rectangle
+
+        for x1, y1, x2, y2 in boxes:
+            ax.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, ec="dodgerblue", lw=0.8))
+    ax.scatter(result.screen[:, 0], result.screen[:, 1], s=18, c="dodgerblue", label=pair_label, zorder=3)
     ax.scatter(proj[:, 0], proj[:, 1], s=18, c="orange", label="GPS projected", zorder=3)
     ys_all = [result.screen[:, 1], proj[:, 1]]
     if extra_points is not None and len(extra_points[0]):
@@ -101,10 +109,13 @@ def _draw_overlay(ax, model: CameraModel, result: CalibrationResult, image, proj
 
 def render_calibration_picture(path, result: CalibrationResult, frame_path=None, title: str = "",
                                extra_points: tuple[np.ndarray, np.ndarray] | None = None,
-                               grid_step_m: float = 50.0) -> Path:
+                               grid_step_m: float = 50.0, boxes=None, track_gps=None,
+                               pair_label: str = "labelled (fit pairs)") -> Path:
     """Save the calibration picture to ``path`` (PNG, atomically); returns the path.
 
-    ``extra_points`` (screen (M,2), gps (M,2)), e.g. validation pairs, are drawn as crosses with their errors.
+    ``extra_points`` (screen (M,2), gps (M,2)), e.g. validation pairs, are drawn as crosses with their errors;
+    ``boxes`` (N,4), the boxes the pairs were read from, as rectangles; ``track_gps`` (M,2), the vessel's GPS at
+    every frame, as projected dots.
     """
     import matplotlib
 
@@ -121,7 +132,8 @@ def render_calibration_picture(path, result: CalibrationResult, frame_path=None,
     ax_zoom = fig.add_subplot(grid[1, :])
     proj = result.screen + result.reproj_px
     for axis, zoomed in ((ax, False), (ax_zoom, True)):
-        _draw_overlay(axis, model, result, image, proj, extra_points, grid_step_m, zoomed)
+        _draw_overlay(axis, model, result, image, proj, extra_points, grid_step_m, zoomed, boxes, track_gps,
+                      pair_label)
     ax.legend(loc="upper right", fontsize=8, framealpha=0.7)
     f = result.figures
     ax.set_title(

@@ -58,6 +58,7 @@ class PinholeGeometry:
     focal_px: focal length, ideal pixels. height_m: camera height above the water. nadir_xy: the sea point below
     the camera, world metres (near (0, 0) when the camera's GPS position is right). skew: |cos| of the angle
     between H's first two rotation columns after the fit (0 for an exact pinhole), aspect their length ratio (1).
+    above_water: False when the camera centre H implies lies under the sea plane (no real camera: a wrong match).
     """
 
     focal_px: float
@@ -65,6 +66,7 @@ class PinholeGeometry:
     nadir_xy: tuple[float, float]
     skew: float
     aspect: float
+    above_water: bool = True
 
 
 def _same_number(a: float, b: float) -> bool:
@@ -562,7 +564,7 @@ class CameraModel:
         return PinholeGeometry(focal_px=float(f), height_m=float(abs(centre[2])),
                                nadir_xy=(float(centre[0]), float(centre[1])),
                                skew=float(abs(r1 @ r2) / (np.linalg.norm(r1) * np.linalg.norm(r2))),
-                               aspect=float(n1 / n2))
+                               aspect=float(n1 / n2), above_water=bool(centre[2] > 0))
 
     def water_level_scale(self, level_m):
         """The scale k = h / (h - rise) for water ``rise`` = ``level_m`` - ``water_level_m`` higher than at calibration.

@@ -1,0 +1,162 @@
+"""The label-free calibration's search on synthetic cameras: found when the data allow, refused when they do not."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
+
+from vessel_calib import geodesy
+from vessel_calib.errors import CalibrationError
+from vessel_calib.gps_association import FrameBoxes, SearchOptions, associate_and_calibrate
+
+FAST = SearchOptions(hypotheses=20000, candidates_refined=4)
+
+
+def _grid_error_px(found, truth) -> float:
+    xw, yw = np.meshgrid(np.linspace(-150, 150, 7), np.linspace(40, 400, 7))
+    bearing_ok = np.abs(np.degrees(np.arctan2(xw, yw)) - truth.heading_deg) < 25
+    x0, y0, ok0 = truth.world_to_screen(xw[bearing_ok], yw[bearing_ok])
+    x1, y1, ok1 = found.world_to_screen(xw[bearing_ok], yw[bearing_ok])
+    inside = ok0 & ok1 & truth.in_image(x0, y0)
+    return float(np.max(np.hypot(x1 - x0, y1 - y0)[inside]))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_search_recovers_the_camera_through_clutter_misses_and_dropouts(seed):
+    truth = pinhole_camera(height_m=4.0, heading_deg=76.0, tilt_down_deg=-1.0, focal_px=950.0, K1=-3.5e-7)
+    frames = search_frames(truth, seed=seed)
+    found = associate_and_calibrate(frames, CAMERA_LAT, CAMERA_LON, options=FAST)
+    model = found.result.model
+    # The box noise is 1 px; the tolerances are a few times what that noise moves a fit of ~60 pairs.
+    assert abs(model.heading_deg - truth.heading_deg) < 0.2
+    assert abs(model.K1 - truth.K1) < 5e-8
+    assert _grid_error_px(model, truth) < 3.0
+    assert math.isclose(model.pinhole().height_m, 4.0, rel_tol=0.1)
+    # Every associated box is the vessel's: no clutter box and no post was taken for it.
+    vessel_boxes = found.boxes()
+    assert found.associated >= 40
+    assert np.all(vessel_boxes[:, 1] != 650.0)
+    assert "camera found: height" in "\n".join(found.report_lines())
+
+
+def test_search_refuses_a_track_that_never_comes_into_view():
+    truth = pinhole_camera(height_m=4.0, heading_deg=76.0, tilt_down_deg=-1.0, focal_px=950.0, K1=-3.5e-7)
+    frames = search_frames(truth, seed=0, bearing_offset_deg=180.0)
+    with pytest.raises(CalibrationError, match="no camera puts the vessel.s GPS track on detected boats"):
+        associate_and_calibrate(frames, CAMERA_LAT, CAMERA_LON, options=FAST)
+
+
+def test_search_refuses_a_camera_position_1_km_off():
+    truth = pinhole_camera(height_m=4.0, heading_deg=76.0, tilt_down_deg=-1.0, focal_px=950.0, K1=-3.5e-7)
+    frames = search_frames(truth, seed=0)
+    wrong_lat, wrong_lon = geodesy.local_to_gps(np.array([0.0]), np.array([1000.0]), CAMERA_LAT, CAMERA_LON)
+    with pytest.raises(CalibrationError, match="stand 1000 m from the given camera position"):
+        associate_and_calibrate(frames, float(wrong_lat[0]), float(wrong_lon[0]), options=FAST)
+
+
+def test_search_refuses_frames_with_no_boats_and_too_few_frames():
+    truth = pinhole_camera()
+    frames = search_frames(truth, seed=0)
+    empty = [FrameBoxes(f.video, f.frame, f.stamp, f.lat, f.lon, np.zeros((0, 4)), np.zeros(0)) for f in frames]
+    with pytest.raises(CalibrationError, match="found no boat"):
+        associate_and_calibrate(empty, CAMERA_LAT, CAMERA_LON, options=FAST)
+    few = [f for f in frames if math.isfinite(f.lat)][:8]
+    with pytest.raises(CalibrationError, match="only 8 frames with a GPS fix"):
+        associate_and_calibrate(few, CAMERA_LAT, CAMERA_LON, options=FAST)
+
+
+def test_search_refuses_associations_all_at_one_range():
+    truth = pinhole_camera(height_m=4.0, heading_deg=76.0, tilt_down_deg=-1.0, focal_px=950.0, K1=-3.5e-7)
+    frames = search_frames(truth, seed=0, clutter=0)
+    ranges = [math.hypot(*geodesy.gps_to_local(f.lat, f.lon, CAMERA_LAT, CAMERA_LON)) for f in frames]
+    one_range = [f for f, r in zip(frames, ranges, strict=True) if 150 < r < 200]
+    with pytest.raises(CalibrationError, match="all at about one range"):
+        associate_and_calibrate(one_range, CAMERA_LAT, CAMERA_LON,
+                                options=SearchOptions(hypotheses=5000, min_associations=6))
+
+
+def test_search_options_are_checked():
+    with pytest.raises(CalibrationError, match="box_anchor"):
+        SearchOptions(box_anchor=1.5).checked()
+    with pytest.raises(CalibrationError, match="min_associations"):
+        SearchOptions(min_associations=3).checked()
+
+
+# --------------------------------------------------------------------------- the calibrate command without labels
+def _cli(args, capsys):
+    from vessel_calib import calibrate_node
+
+    status = calibrate_node.main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def _truth():
+    return pinhole_camera(height_m=4.0, heading_deg=76.0, tilt_down_deg=-1.0, focal_px=950.0, K1=-3.5e-7)
+
+
+def test_calibrate_a_folder_without_labels(tmp_path, capsys):
+    from calib_synthetic import write_search_folder
+
+    from vessel_calib.params import load_camera_yaml
+
+    detections = write_search_folder(tmp_path / "data", search_frames(_truth(), seed=3))
+    out = tmp_path / "cal" / "camera.yaml"
+    status, stdout, err = _cli(["--data", tmp_path / "data", "--videos", "1-5", "--detections", detections,
+                                "--hypotheses", 20000, "--out", out], capsys)
+    assert status == 0, err
+    assert "without labels" in stdout and "association:" in stdout and "camera found: height" in stdout
+    model = load_camera_yaml(out)
+    assert abs(model.heading_deg - 76.0) < 0.2
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("case, match", [
+    ("behind", "no camera puts the vessel's GPS track on detected boats"),
+    ("no boats", "found no boat"),
+    ("camera 1 km off", "stand 10.. m from the given camera position"),
+    ("too few frames", "only 8 frames with a GPS fix"),
+])
+def test_calibrate_without_labels_refuses_bad_input(tmp_path, capsys, case, match):
+    from calib_synthetic import write_search_folder
+
+    frames = search_frames(_truth(), seed=3, bearing_offset_deg=180.0 if case == "behind" else 0.0)
+    if case == "too few frames":
+        frames = [f for f in frames if math.isfinite(f.lat)][:8]
+    camera_lat = CAMERA_LAT + (1000.0 / 111195.0 if case == "camera 1 km off" else 0.0)
+    detections = write_search_folder(tmp_path / "data", frames, camera_lat=camera_lat)
+    if case == "no boats":
+        detections.write_text(detections.read_text().splitlines()[0] + "\n")
+    out = tmp_path / "cal" / "camera.yaml"
+    status, stdout, err = _cli(["--data", tmp_path / "data", "--videos", "1-5", "--detections", detections,
+                                "--hypotheses", 5000, "--out", out], capsys)
+    assert status == 2, stdout
+    assert err.startswith("error: ") and len(err.strip().splitlines()) == 1
+    assert re.search(match, err), err
+    assert not out.parent.exists()
+
+
+def test_calibrate_a_video_without_boats_is_refused_and_writes_nothing(tmp_path, capsys, model_path):
+    import cv2
+
+    video = tmp_path / "sea.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 1.0, (320, 180))
+    for _ in range(14):
+        writer.write(np.full((180, 320, 3), 110, dtype=np.uint8))
+    writer.release()
+    track = tmp_path / "boat.csv"
+    track.write_text("stamp,lat,lon\n" + "".join(f"{1.6e9 + t},{CAMERA_LAT + 0.001 + 1e-5 * t},{CAMERA_LON + 0.002}\n"
+                                                 for t in range(-5, 25)))
+    out = tmp_path / "cal" / "camera.yaml"
+    status, stdout, err = _cli(["--video", video, "--start-utc", "1600000000", "--gps", track, "--every", 1,
+                                "--camera-lat", CAMERA_LAT, "--camera-lon", CAMERA_LON, "--out", out], capsys)
+    assert status == 2, stdout
+    assert "14 frames of" in stdout and "found no boat" in err
+    assert not out.parent.exists()
+    status, _, err = _cli(["--video", video, "--start-utc", "2001-01-01T00:00:00Z", "--gps", track, "--camera-lat",
+                           CAMERA_LAT, "--camera-lon", CAMERA_LON, "--out", out], capsys)
+    assert status == 2 and "no frame of" in err and "--start-utc" in err
