@@ -330,6 +330,19 @@ class NodeHealth:
         """
         self._watched.extend(p for p in publishers if p is not None)
 
+    def unwatch(self, *publishers) -> None:
+        """Stop reporting these publishers (before they are destroyed: a managed node's cleanup)."""
+        self._watched = [p for p in self._watched if all(p is not q for q in publishers)]
+
+    def _matched_counts(self) -> list[tuple[str, str]]:
+        counts = []
+        for publisher in list(self._watched):
+            try:
+                counts.append((f"{MATCHED_SUBSCRIBERS}{publisher.topic_name}", str(publisher.get_subscription_count())))
+            except RuntimeError:  # destroyed without unwatch (rclpy's InvalidHandle): never let it stop the node
+                self.unwatch(publisher)
+        return counts
+
     @property
     def counts(self) -> dict[str, int]:
         """A copy of the problem counters by kind."""
@@ -381,7 +394,7 @@ class NodeHealth:
             message = f"{message}; problems: " + ", ".join(f"{k}={v}" for k, v in counts if k in problem_kinds)
         status.level = level
         status.message = message
-        values += [(f"{MATCHED_SUBSCRIBERS}{p.topic_name}", str(p.get_subscription_count())) for p in self._watched]
+        values += self._matched_counts()
         status.values = [KeyValue(key=k, value=v) for k, v in values]
         status.values += [KeyValue(key=f"count.{k}", value=str(v)) for k, v in counts]
         array = DiagnosticArray()
@@ -464,6 +477,15 @@ def run_node(
             rclpy.try_shutdown()
         _ignore_late_sigint()  # again: shutting rclpy down puts back the handler it replaced at init
     return status
+
+
+def release_publisher(node, publisher) -> None:
+    """Destroy a publisher the node made, as a lifecycle publisher when it is one (so no transition touches it)."""
+    destroy = getattr(node, "destroy_lifecycle_publisher", None)
+    if destroy is not None and type(publisher).__name__ == "LifecyclePublisher":
+        destroy(publisher)
+    else:
+        node.destroy_publisher(publisher)
 
 
 class PhasedLifecycle:

@@ -34,6 +34,7 @@ from vessel_calib.node_support import (
     declare_parameter,
     image_qos_profile,
     main_for,
+    release_publisher,
     reliable_qos,
 )
 from vessel_detect import bag_io
@@ -164,7 +165,7 @@ class _CameraPhases:
             self.source.close()
             self.source = None
         for publisher in self._publishers:
-            self.destroy_publisher(publisher)
+            release_publisher(self, publisher)
         self._publishers = []
         if self._ack_subscription is not None:
             self.destroy_subscription(self._ack_subscription)

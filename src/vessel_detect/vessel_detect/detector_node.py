@@ -39,6 +39,7 @@ from vessel_calib.node_support import (
     declare_parameter,
     image_qos_profile,
     main_for,
+    release_publisher,
     reliable_qos,
     steady_timer,
 )
@@ -183,7 +184,8 @@ class _DetectorPhases:
     def _cleanup(self) -> None:
         for publisher in (self.detections_pub, self.annotated_pub):
             if publisher is not None:
-                self.destroy_publisher(publisher)
+                self.health.unwatch(publisher)
+                release_publisher(self, publisher)
         self.detections_pub = self.annotated_pub = None
         self.detector = None  # the ONNX session and its memory go with it
 
