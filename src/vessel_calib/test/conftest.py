@@ -9,7 +9,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from vessel_calib.dataset import Dataset, default_data_dir
+from vessel_calib.dataset import Dataset
+from vessel_calib.paths import default_data_dir
 
 
 @pytest.fixture(scope="session")

@@ -187,9 +187,9 @@ def test_ros_params_file_block(tmp_path, pairs_csv, capsys):
 
 
 def test_only_ros_args_without_data_says_what_it_needs(monkeypatch, capsys):
-    import vessel_calib.dataset as dataset_module
+    import vessel_calib.paths as paths_module
 
-    monkeypatch.setattr(dataset_module, "default_data_dir", lambda: None)
+    monkeypatch.setattr(paths_module, "default_data_dir", lambda: None)
     status, stdout, err = run_cli(["--ros-args"], capsys)
     assert status == 0 and "nothing to do" in stdout and "--data" in stdout
 

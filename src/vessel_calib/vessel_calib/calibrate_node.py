@@ -381,7 +381,8 @@ def run(args) -> int:
         leave_one_pair_out_errors,
         study_draws,
     )
-    from vessel_calib.dataset import Dataset, default_data_dir, parse_videos, repo_root
+    from vessel_calib.dataset import Dataset
+    from vessel_calib.paths import default_data_dir, parse_videos, repo_root
 
     ds = None
     data_dir = args.data

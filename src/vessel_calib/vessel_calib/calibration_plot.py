@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vessel_calib import geodesy
 from vessel_calib.calibration import CalibrationResult
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.errors import CalibrationError
@@ -162,7 +163,6 @@ def render_calibration_picture(path, result: CalibrationResult, frame_path=None,
     ok = np.isfinite(result.backproj_m)
     ax_err.scatter(dist[ok], result.backproj_m[ok], s=14, c="dodgerblue", label="fit pairs")
     if extra_points is not None and len(extra_points[0]):
-        from vessel_calib import geodesy
 
         es, eg = extra_points
         lat, lon, valid = model.screen_to_gps(es[:, 0], es[:, 1])

@@ -13,7 +13,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,82 +22,13 @@ import numpy as np
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel, box_points
 from vessel_calib.errors import CalibrationError, DataError
 from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
+from vessel_calib.paths import parse_videos
 
 DEFAULT_CALIBRATION = "paper_corrected_H00_negative"
 TRAIN_VIDEOS = (7, 8, 9, 10, 11, 12)
 VALIDATION_VIDEOS = (13, 14, 15, 16, 17)
 #: Which labelling passes make the calibration pairs: the primary labels, or also the second pass.
 LABEL_PASSES = ("primary", "all")
-
-
-def repo_root() -> Path:
-    """The project root (the folder holding ``src/``), found from this file's location or the working directory."""
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        if (parent / "src" / "vessel_calib").is_dir() and (parent / "pyproject.toml").exists():
-            return parent
-    # Installed (non-symlink) package: fall back to the working directory or its parents.
-    cwd = Path.cwd().resolve()
-    for parent in (cwd, *cwd.parents):
-        if (parent / "src" / "vessel_calib").is_dir():
-            return parent
-    return cwd
-
-
-def in_repo(path) -> Path:
-    """``path``, or for a relative path not found from the working folder, the repository's file of that name.
-
-    The shipped configuration names its files (models, tide tables, cues) relative to the repository root.
-    """
-    candidate = Path(str(path)).expanduser()
-    if candidate.is_absolute() or candidate.is_file():
-        return candidate
-    return repo_root() / candidate
-
-
-def repo_file(relative: str) -> str | None:
-    """The repository's file ``relative`` (e.g. ``config/aitas.yaml``) as a string, None when it is absent."""
-    path = repo_root() / relative
-    return str(path) if path.is_file() else None
-
-
-def default_data_dir() -> Path | None:
-    """``$VESSEL_DATA`` if set, else ``<repo>/../shared/aitas``; None when that folder does not exist."""
-    env = os.environ.get("VESSEL_DATA")
-    candidates = [Path(env).expanduser()] if env else []
-    candidates.append(repo_root().parent / "shared" / "aitas")
-    for candidate in candidates:
-        if (candidate / "camera.json").is_file():
-            return candidate
-    return None
-
-
-def parse_videos(spec: str | Iterable[int] | None) -> list[int] | None:
-    """``"7-12"``, ``"7,9,13-17"`` or an iterable of ints -> sorted list; None stays None (all videos)."""
-    if spec is None:
-        return None
-    if not isinstance(spec, str):
-        return sorted({int(v) for v in spec})
-    videos: set[int] = set()
-    for part in spec.replace(" ", "").split(","):
-        if not part:
-            continue
-        try:
-            if "-" in part:
-                lo, hi = part.split("-", 1)
-                lo_i, hi_i = int(lo), int(hi)
-                if hi_i < lo_i or lo_i < 0:
-                    raise ValueError
-                videos.update(range(lo_i, hi_i + 1))
-            else:
-                if int(part) < 0:
-                    raise ValueError
-                videos.add(int(part))
-        except ValueError:
-            raise DataError(f"bad video list {spec!r}: use e.g. 7-12 or 7,9,13-17") from None
-    if not videos:
-        raise DataError(f"bad video list {spec!r}: it names no video")
-    return sorted(videos)
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,8 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from vessel_calib.errors import VesselError
+from vessel_calib.camera_model import CameraModel
+from vessel_calib.errors import CalibrationError, DataError, VesselError
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
 """Best effort, keep last 5: images and other high-rate data where the newest sample matters most."""
@@ -138,7 +139,6 @@ def declare_parameter(
     from rclpy.exceptions import ParameterException
     from rclpy.parameter import Parameter
 
-    from vessel_calib.errors import DataError
 
     given = command_line_parameters(_command_line, node.get_name()).get(name)
     overrides = getattr(node, "_parameter_overrides", None)
@@ -175,7 +175,6 @@ def _apply_command_line_sim_time(node: Node, args: Sequence[str]) -> None:
     """``-p use_sim_time:=...`` wins over the parameter files too (rclpy declares it before any of ours)."""
     from rclpy.parameter import Parameter
 
-    from vessel_calib.errors import DataError
 
     given = command_line_parameters(args, node.get_name()).get("use_sim_time")
     if given is None:
@@ -249,9 +248,6 @@ def declare_camera_model(node: Node, prefix: str = "camera"):
     true``, for tests and a first look at the challenge data). A calibration that cannot be used raises
     ``CalibrationError`` naming the key; nodes let it stop them at start (``run_node`` prints it as one line).
     """
-    from vessel_calib.camera_model import CameraModel
-    from vessel_calib.errors import CalibrationError
-
     builtin = declare_parameter(
         node, f"{prefix}.{BUILTIN_CALIBRATION}", False,
         "Use the paper's calibration of the challenge camera (corrected) when no calibration file is given; for "

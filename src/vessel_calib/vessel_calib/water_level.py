@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.errors import DataError
+from vessel_calib.paths import in_repo
 
 TIME_COLUMNS_UNIX = ("utc_s", "unix_s")
 TIME_COLUMNS_ISO = ("utc", "date time", "time")
@@ -143,7 +144,6 @@ def load_water_level(path) -> WaterLevelTable | None:
     """The table of a ``water_level.file`` parameter; None for an empty path (no correction)."""
     if path is None or not str(path).strip():
         return None
-    from vessel_calib.dataset import in_repo
 
     return WaterLevelTable.from_csv(in_repo(path))
 

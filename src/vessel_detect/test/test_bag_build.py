@@ -179,7 +179,8 @@ def test_write_bag_rejects_bad_camera_position(tmp_path):
 
 @pytest.mark.data
 def test_shared_dataset_video_round_trip(tmp_path, capsys):
-    from vessel_calib.dataset import Dataset, default_data_dir
+    from vessel_calib.dataset import Dataset
+    from vessel_calib.paths import default_data_dir
 
     data_dir = default_data_dir()
     if data_dir is None:

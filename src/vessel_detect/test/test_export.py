@@ -13,6 +13,7 @@ from vessel_calib import geodesy
 from vessel_calib.camera_model import CameraModel
 from vessel_detect import detect_cli
 from vessel_detect.decoders import grid_point_count
+from vessel_detect.detections_csv import CSV_COLUMNS
 from vessel_detect.onnx_synthetic import write_constant_output_model
 
 CAMERA_LAT, CAMERA_LON = 32.70297, -117.234631
@@ -102,7 +103,7 @@ def test_run_writes_one_row_per_detection(tiny_dataset, synthetic_params, tmp_pa
     assert status == 0
     with open(out) as handle:
         rows = list(csv.DictReader(handle))
-    assert list(rows[0].keys()) == list(detect_cli.CSV_COLUMNS)
+    assert list(rows[0].keys()) == list(CSV_COLUMNS)
     assert [(int(r["video"]), int(r["frame"])) for r in rows] == [(7, f) for f, _, _ in FRAMES]
     for row in rows:
         box = [float(row[k]) for k in ("x1", "y1", "x2", "y2")]

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.errors import DataError, ModelError
+from vessel_detect.box_ops import suppress_nested
 
 #: Colour features of a crop (``crop_features``); FEATURE_SIZE is kept for the first, colour-only models.
 FEATURE_SIZE = COLOUR_SIZE = 46
@@ -264,8 +265,6 @@ def score_with_cue(model: AppearanceModel, bgr: np.ndarray, boxes_xyxy, scores,
     below ``min_probability`` are dropped, and with ``nested_overlap`` > 0 boxes nested in a likelier one
     (``box_ops.suppress_nested``; the kept ones then come best first).
     """
-    from vessel_detect.box_ops import suppress_nested
-
     if combine not in COMBINE_MODES:
         raise ModelError(f"appearance: combine must be one of {', '.join(COMBINE_MODES)}, got {combine!r}")
     boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)

@@ -23,7 +23,10 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vessel_calib.dataset import Dataset
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.gps_track import GpsTrack
+from vessel_calib.paths import default_data_dir, parse_videos, repo_root
 from vessel_detect import bag_io
 from vessel_detect.sources import VideoSource, jpeg_problem, parse_utc
 
@@ -238,8 +241,6 @@ def build_from_dataset(
     report: Callable[[str], None] | None = None,
 ) -> list[BuildResult]:
     """One bag per video of a dataset folder, `out_dir/video_<N>`; returns what each holds."""
-    from vessel_calib.dataset import Dataset
-
     options = options or BuildOptions()
     dataset = Dataset(data_dir)
     available = dataset.videos()
@@ -311,8 +312,6 @@ def build_from_video(
     counter: Callable[[int, int | None], None] | None = None,
 ) -> BuildResult:
     """One bag from a video file (frames re-encoded as JPEG) and, optionally, a GPS track file (CSV or GPX)."""
-    from vessel_calib.gps_track import GpsTrack
-
     options = options or BuildOptions()
     name = name or video_path.stem
     problems: list[str] = []
@@ -461,7 +460,6 @@ def _options(args: argparse.Namespace) -> BuildOptions:
 
 
 def _default_out() -> Path:
-    from vessel_calib.dataset import repo_root
 
     return repo_root() / "bags"
 
@@ -542,7 +540,6 @@ def run(argv: list[str] | None = None) -> int:
             counter.end()
         results = [result]
     else:
-        from vessel_calib.dataset import default_data_dir, parse_videos
 
         data_dir = args.data if args.data is not None else default_data_dir()
         if data_dir is None:

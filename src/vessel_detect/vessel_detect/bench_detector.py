@@ -31,8 +31,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.paths import repo_file
 from vessel_detect.detector_params import build_detector, load_params_files, open_model
 
 MODES = ("full", "band", "tiled")
@@ -86,7 +86,7 @@ def _ros_available() -> str | None:
 
 def detector_executable() -> Path:
     """The installed console script of the detector node."""
-    from vessel_calib.dataset import repo_root
+    from vessel_calib.paths import repo_root
 
     return repo_root() / "ros2_ws" / "install" / "vessel_detect" / "lib" / "vessel_detect" / "detector"
 
@@ -195,7 +195,8 @@ class NodeDriver:
 
 def run(args: argparse.Namespace) -> dict:
     """Measure and print; return the figures."""
-    from vessel_calib.dataset import Dataset, default_data_dir
+    from vessel_calib.dataset import Dataset
+    from vessel_calib.paths import default_data_dir
 
     data = Path(args.data) if args.data else default_data_dir()
     if data is None:

@@ -20,18 +20,22 @@ import json
 import math
 import shutil
 import sys
-import time
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError, VesselError
-from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
-from vessel_detect.detector import Detections, VesselDetector
+from vessel_calib.paths import repo_file
+from vessel_detect.dataset_detection import (
+    camera_for,
+    detect_frames,
+    detections_csv_text,
+    open_dataset,
+    parse_video_spec,
+)
+from vessel_detect.detections_csv import read_detections_csv
+from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import build_detector, load_params_file
 from vessel_detect.recall import HIT_IOU, RecallResult, recall_at  # noqa: F401 - the recall command's core
 
@@ -46,78 +50,15 @@ def _atomic_write(path: Path, text: str) -> None:
     atomic_write_text(path, text)
 
 
-def _open_dataset(data: str | None):
-    from vessel_calib.dataset import Dataset, default_data_dir
-
-    path = Path(data) if data else default_data_dir()
-    if path is None:
-        raise DataError("no dataset folder: pass --data DIR or set VESSEL_DATA (default ../shared/aitas)")
-    return Dataset(path)
-
-
-def _parse_videos(spec: str | None):
-    from vessel_calib.dataset import parse_videos
-
-    return parse_videos(spec)
-
-
-def _camera_for(dataset, params_camera, calib=None):
-    """The calibration: ``--calib``, else the params file's camera block, else the dataset's camera.json one."""
-    if calib:
-        from vessel_calib.params import load_camera_yaml
-
-        return load_camera_yaml(calib)
-    if params_camera is not None:
-        return params_camera
-    try:
-        return dataset.camera_model()
-    except VesselError as error:
-        print(f"warning: {error}; using the challenge camera's horizon (y = 418)", file=sys.stderr)
-        return None
-
-
-def _read_frame(path: Path) -> np.ndarray | None:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    return image if image is not None and image.size else None
-
-
-def detect_frames(detector: VesselDetector, frames: list, progress: bool = True) -> Iterator[tuple[object, Detections]]:
-    """Run the detector over dataset frames; unreadable frames are reported once each and skipped."""
-    started = time.monotonic()
-    for index, record in enumerate(frames, start=1):
-        image = _read_frame(record.path)
-        if image is None:
-            print(f"warning: cannot read frame {record.path}; skipped", file=sys.stderr)
-            continue
-        yield record, detector.detect(image)
-        if progress and (index % 20 == 0 or index == len(frames)):
-            rate = index / max(time.monotonic() - started, 1e-9)
-            print(f"\r  {index}/{len(frames)} frames, {rate:.1f} frames/s", end="", file=sys.stderr, flush=True)
-    if progress and frames:
-        print(file=sys.stderr)
-
-
-def detections_csv_text(rows: Iterable[tuple[int, int, Detections]]) -> str:
-    """The CSV of ``run`` for (video, frame, detections) rows."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(CSV_COLUMNS)
-    for video, frame, dets in rows:
-        for box, score, class_id, p_target in zip(dets.boxes_xyxy, dets.scores, dets.class_ids, dets.p_target,
-                                                  strict=True):
-            writer.writerow(csv_row(video, frame, box, score, class_id, p_target))
-    return out.getvalue()
-
-
 # ---------------------------------------------------------------------------------------------------- run
 def cmd_run(args: argparse.Namespace) -> int:
     """``run``: detections of every frame to CSV."""
-    dataset = _open_dataset(args.data)
+    dataset = open_dataset(args.data)
     values, params_camera = load_params_file(args.params)
     if args.no_cue:
         values["appearance_model"] = ""
-    detector = build_detector(values, _camera_for(dataset, params_camera, args.calib))
-    frames = dataset.frames(_parse_videos(args.videos))
+    detector = build_detector(values, camera_for(dataset, params_camera, args.calib))
+    frames = dataset.frames(parse_video_spec(args.videos))
     if not frames:
         raise DataError(f"no frames for videos {args.videos or 'all'} in {dataset.path / 'frames.csv'}")
     print(f"detecting in {len(frames)} frames of {dataset.path} ({_describe(detector)})", file=sys.stderr)
@@ -153,13 +94,13 @@ def labelled_frames(dataset, videos) -> tuple[list, dict[tuple[int, int], np.nda
 
 def cmd_recall(args: argparse.Namespace) -> int:
     """``recall``: recall of the vessel of interest on the hand-labelled frames."""
-    dataset = _open_dataset(args.data)
-    videos = _parse_videos(args.videos)
+    dataset = open_dataset(args.data)
+    videos = parse_video_spec(args.videos)
     frames, labels = labelled_frames(dataset, videos)
     if not labels:
         raise DataError(f"no hand-labelled frames for videos {args.videos} in {dataset.path}")
     values, params_camera = load_params_file(args.params)
-    camera = _camera_for(dataset, params_camera, args.calib)
+    camera = camera_for(dataset, params_camera, args.calib)
     if args.detections:
         detections = read_detections_csv(Path(args.detections))
         source = f"detections from {args.detections}"
@@ -259,9 +200,9 @@ def plan_export(dataset, camera, frames, box_model, max_gap_s: float, min_box_px
 
 def cmd_export_labels(args: argparse.Namespace) -> int:
     """``export-labels``: YOLO-format training data from the vessel's GPS."""
-    dataset = _open_dataset(args.data)
-    videos = _parse_videos(args.videos)
-    val_videos = set(_parse_videos(args.val_videos) or []) if args.val_videos else set()
+    dataset = open_dataset(args.data)
+    videos = parse_video_spec(args.videos)
+    val_videos = set(parse_video_spec(args.val_videos) or []) if args.val_videos else set()
     _, params_camera = load_params_file(args.params)
     camera = params_camera or dataset.camera_model()
     if camera.camera_lat is None or camera.camera_lon is None:

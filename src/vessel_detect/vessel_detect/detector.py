@@ -25,7 +25,9 @@ import cv2
 import numpy as np
 
 from vessel_calib.errors import ModelError, VesselError
+from vessel_detect.appearance_model import rescore_detections
 from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
+from vessel_detect.image_codec import ImageError
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
 from vessel_detect.model_store import ModelSpec, how_to_get, resolve_model, sha256_of
 from vessel_detect.tiling import (
@@ -93,8 +95,6 @@ class Detections:
         size with the same aspect ratio (a scaled stream) has its boxes scaled; one of another aspect ratio is
         another camera or a crop, which no scale makes right: ``ImageError`` (kind ``wrong_image_size``).
         """
-        from vessel_detect.image_codec import ImageError
-
         (width, height), (ref_w, ref_h) = image_wh, calibrated_wh
         if (width, height) == (ref_w, ref_h):
             return self
@@ -534,7 +534,6 @@ class VesselDetector:
                                 merged.target_scores)
         detections = self._filter(detections, (width, height))
         if self.appearance is not None:
-            from vessel_detect.appearance_model import rescore_detections
 
             calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
             detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,

@@ -11,7 +11,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vessel_calib.camera_model import CameraModel
 from vessel_calib.errors import ModelError, VesselError
+from vessel_calib.params import camera_block, node_blocks, read_params_yaml
+from vessel_calib.paths import in_repo
 from vessel_detect.appearance_model import (
     COMBINE_MODES,
     DEFAULT_COMBINE,
@@ -233,7 +236,6 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
         horizon = horizon_band_top(camera_model)
     detector = VesselDetector(model or open_model(values), config, horizon, reference)
     if values.get("appearance_model"):
-        from vessel_calib.dataset import in_repo
 
         path = in_repo(values["appearance_model"])
         detector.appearance = AppearanceModel.load(path)
@@ -266,8 +268,6 @@ def load_params_files(paths, node_name: str = NODE_NAME) -> tuple[dict[str, Any]
 
     As ``--params-file A --params-file B`` would: a later file's values win, the last camera block is the calibration.
     """
-    from vessel_calib.params import camera_block, node_blocks, read_params_yaml
-
     overrides: dict[str, Any] = {}
     camera = None
     for path in paths:
@@ -280,7 +280,6 @@ def load_params_files(paths, node_name: str = NODE_NAME) -> tuple[dict[str, Any]
         for params in node_blocks(blocks, node_name):
             block = camera_block(params)
             if block is not None:
-                from vessel_calib.camera_model import CameraModel
 
                 camera = CameraModel.from_params(block, where=f"{path}: camera")
                 break

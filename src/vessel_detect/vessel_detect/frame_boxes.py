@@ -17,10 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError
 from vessel_calib.gps_association import FrameBoxes
 from vessel_calib.gps_track import GpsTrack
+from vessel_calib.params import atomic_write_text
+from vessel_calib.paths import repo_file
+from vessel_detect.detector import VesselDetector
+from vessel_detect.detector_params import detector_config, load_params_file, open_model
+from vessel_detect.sources import VideoSource
 
 #: The generic detector's parameters (its cue and masks are left out).
 DEFAULT_DETECTOR_PARAMS = "config/detector_coco.yaml"
@@ -28,9 +32,6 @@ DEFAULT_DETECTOR_PARAMS = "config/detector_coco.yaml"
 
 def calibration_free_detector(params_path: str | None, image_wh: tuple[int, int]):
     """The detector of ``params_path`` (default: the COCO preset) made independent of any calibration."""
-    from vessel_detect.detector import VesselDetector
-    from vessel_detect.detector_params import detector_config, load_params_file, open_model
-
     path = params_path or repo_file(DEFAULT_DETECTOR_PARAMS)
     if path is None:
         raise DataError(f"{DEFAULT_DETECTOR_PARAMS} not found: give --detector-params FILE")
@@ -128,8 +129,6 @@ def video_frame_boxes(video_path, start_utc: float, track: GpsTrack, every: int 
 
     Also returns the number of frames without one and the first such frame (BGR; for the calibration picture).
     """
-    from vessel_detect.sources import VideoSource
-
     source = VideoSource(video_path, start_utc=start_utc, every=every)
     frames: list[FrameBoxes] = []
     rows = []
@@ -166,7 +165,6 @@ def video_frame_boxes(video_path, start_utc: float, track: GpsTrack, every: int 
 
 
 def _save_detections(path, rows: Iterable[tuple[int, int, np.ndarray]]) -> None:
-    from vessel_calib.params import atomic_write_text
 
     lines = ["video,frame,x1,y1,x2,y2,score,class_id,p_target"]
     for video, frame, boxes in rows:

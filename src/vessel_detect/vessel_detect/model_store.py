@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vessel_calib.errors import ModelError
+from vessel_calib.paths import in_repo
 
 DEFAULT_MODEL_FILENAME = "yolox_nano.onnx"
 DEFAULT_MODEL_SHA256 = "695e750a5d5754bb5a8d5325643b59282191a7e7a564e435a415fd3c578eab14"
@@ -34,6 +35,7 @@ DEFAULT_MODEL_URL = "https://github.com/Kazuhito00/YOLOX-ONNX-TFLite-Sample/raw/
 DEFAULT_MODEL_SOURCE = (
     "YOLOX-Nano (COCO, Apache-2.0) from the repository Kazuhito00/YOLOX-ONNX-TFLite-Sample, model/yolox_nano.onnx"
 )
+
 MODEL_ENV = "VESSEL_MODEL"
 CACHE_ENV = "VESSEL_MODEL_CACHE"
 SHARED_MODEL_SUBDIR = Path("shared") / "models" / "yolox_nano"
@@ -97,7 +99,7 @@ def sha256_of(path: Path) -> str:
 def repo_root() -> Path:
     """The project's repository root (the folder holding ``src/vessel_detect``), or this file's best guess."""
     try:
-        from vessel_calib.dataset import repo_root as dataset_repo_root
+        from vessel_calib.paths import repo_root as dataset_repo_root
 
         return Path(dataset_repo_root())
     except (ImportError, AttributeError):
@@ -197,7 +199,6 @@ def resolve_model(
 
     """
     if spec.path:
-        from vessel_calib.dataset import in_repo
 
         path = Path(spec.path).expanduser()
         if in_repo(path).is_file():

@@ -54,7 +54,7 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
         Clock, "/clock", lambda m: clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
     )
-    from vessel_calib.dataset import repo_root
+    from vessel_calib.paths import repo_root
 
     exe = repo_root() / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

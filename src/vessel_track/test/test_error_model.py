@@ -4,7 +4,8 @@ import pytest
 import yaml
 
 from vessel_calib.errors import DataError
-from vessel_track.error_model import PAPER_SLOPE, ErrorModel, fit_error_model, main
+from vessel_track.error_model import PAPER_SLOPE, ErrorModel
+from vessel_track.error_model_fit import fit_error_model, main
 
 
 def test_paper_default_and_sigma():

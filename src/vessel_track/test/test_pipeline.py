@@ -87,7 +87,7 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
 
 
 def _data_or_skip():
-    from vessel_calib.dataset import default_data_dir
+    from vessel_calib.paths import default_data_dir
 
     root = default_data_dir()
     if root is None or not (root / "screen_labels.csv").is_file():

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.paths import parse_videos
 from vessel_detect.appearance_model import (
     COMBINE_MODES,
     DEFAULT_COMBINE,
@@ -54,7 +55,19 @@ from vessel_detect.appearance_model import (
     detection_features,
     score_with_cue,
 )
-from vessel_track.distance_model import pixels_from_vessel
+from vessel_detect.detections_csv import CSV_COLUMNS, csv_row
+from vessel_track.distance_model_fit import pixels_from_vessel
+from vessel_track.fuser_settings import load_fuser_settings
+from vessel_track.offline_data import (
+    PREDICTION_HEADER,
+    DetectionFrame,
+    atomic_lines,
+    csv_detections,
+    default_params_path,
+    load_camera,
+    open_dataset,
+    prediction_line,
+)
 
 POSITIVE_PX = 20.0
 NEGATIVE_PX = 60.0
@@ -164,8 +177,6 @@ def per_frame_backprojection(dataset, camera, frames, radius_px: float = POSITIV
     frame is read through the camera at its water level, as the fuser does (the end levels held for
     ``water_level_max_hold_s``, the calibration's level beyond).
     """
-    from vessel_track.pipeline import PREDICTION_HEADER, prediction_line
-
     if pick not in PER_FRAME_PICKS:
         raise DataError(f"appearance: pick must be one of {', '.join(PER_FRAME_PICKS)}, got {pick!r}")
     track = dataset.gps_track()
@@ -202,7 +213,6 @@ def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COM
     """
     import cv2
 
-    from vessel_track.pipeline import DetectionFrame
 
     if combine not in COMBINE_MODES:
         raise DataError(f"appearance: combine must be one of {', '.join(COMBINE_MODES)}, got {combine!r}")
@@ -223,22 +233,15 @@ def rescore(frames, dataset, videos, model_for_video, combine: str = DEFAULT_COM
 
 def write_detections_csv(path: Path, frames) -> None:
     """The detector CSV layout (``video,frame,x1,y1,x2,y2,score,class_id``; class_id 8 = COCO boat)."""
-    from vessel_detect.detections_csv import CSV_COLUMNS, csv_row
-    from vessel_track.pipeline import _atomic_lines
-
     lines = [",".join(CSV_COLUMNS)]
     for f in frames:
         for box, score in zip(f.boxes, f.scores, strict=True):
             lines.append(",".join(csv_row(f.video, f.frame, box, score)))
-    _atomic_lines(Path(path), lines)
+    atomic_lines(Path(path), lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: ``fit`` a model, ``score`` a detections CSV with one, ``rank`` how often it comes first."""
-    from vessel_calib.dataset import parse_videos
-    from vessel_track.fuser_settings import load_fuser_settings
-    from vessel_track.pipeline import csv_detections, default_params_path, load_camera, open_dataset
-
     parser = argparse.ArgumentParser(prog="python -m vessel_track.appearance", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name in ("fit", "score"):
@@ -289,14 +292,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "rank":
             frames = csv_detections(args.detections, dataset, videos)
             if args.per_frame_out is not None:
-                from vessel_track.pipeline import _atomic_lines
 
                 settings = load_fuser_settings(args.params or default_params_path())
                 water_level = settings.water_level.load() if math.isfinite(camera.water_level_m) else None
                 lines = per_frame_backprojection(dataset, camera, frames, args.radius,
                                                  settings.fusion.anchor_offset, args.pick, water_level,
                                                  settings.water_level.max_hold_s)
-                _atomic_lines(args.per_frame_out, lines)
+                atomic_lines(args.per_frame_out, lines)
                 print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
             shares = top_box_share(dataset, camera, frames, args.radius)
             if not shares:

@@ -271,7 +271,7 @@ def build_core_detector(parameters: dict[str, object]) -> CoreDetector:
 # --------------------------------------------------------------------------------------------------------------
 def prepare_bag(video: int, data: Path | None, bags: Path | None) -> Path:
     """The bag folder of ``video``; built from the dataset when missing."""
-    from vessel_calib.dataset import default_data_dir
+    from vessel_calib.paths import default_data_dir
 
     shared = default_data_dir()
     is_shared = data is None or (shared is not None and Path(data).resolve() == shared.resolve())
@@ -1000,7 +1000,7 @@ def _domain_id() -> int:
 
 def run(args: argparse.Namespace) -> dict:
     """The whole benchmark; the result dictionary (also what ``--out`` writes)."""
-    from vessel_calib.dataset import parse_videos
+    from vessel_calib.paths import parse_videos
 
     videos = parse_videos(args.videos)
     if len(videos) != 1:

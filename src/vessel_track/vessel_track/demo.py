@@ -20,8 +20,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset, default_data_dir, parse_videos
+from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset
 from vessel_calib.errors import VesselError
+from vessel_calib.paths import default_data_dir, parse_videos
 from vessel_track.fuser_settings import HAND_BOX_FUSION
 from vessel_track.graph import (
     GRAPH_NODES,
@@ -398,7 +399,8 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     from vessel_calib.params import load_camera_yaml
     from vessel_detect.bag_io import BagReader, ns_of_stamp
     from vessel_track.fuser_settings import load_fuser_settings
-    from vessel_track.pipeline import DetectionFrame, PipelineConfig, run_video, write_predictions_csv
+    from vessel_track.offline_data import DetectionFrame
+    from vessel_track.pipeline import PipelineConfig, run_video, write_predictions_csv
     from vessel_track.tracker import load_tracker_config
 
     camera = load_camera_yaml(calibration)
@@ -444,7 +446,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise VesselError(f"video(s) {absent} are not in {data} (it has {available})")
         saved = None
         if args.detections not in ("detector", "labels"):  # read first: a bad file fails before any work
-            from vessel_track.pipeline import csv_detections
+            from vessel_track.offline_data import csv_detections
 
             saved = csv_detections(Path(args.detections), dataset, videos)
         out = args.out or repo_root() / "out" / "demo"

@@ -38,7 +38,10 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_calib.errors import DataError, VesselError
+from vessel_calib.gps_track import seconds_of_day_to_epoch
 from vessel_calib.params import atomic_write_text
+from vessel_calib.paths import parse_videos
+from vessel_track.offline_data import load_camera, open_dataset
 
 PAPER_M_PER_100M = 5.55
 PREDICTION_COLUMNS = ("video", "t_utc_s", "lat", "lon")
@@ -166,7 +169,6 @@ class ScoredPredictions:
 
 
 def _epoch_of(dataset, video: int, t_utc_s):
-    from vessel_calib.gps_track import seconds_of_day_to_epoch
 
     frames = dataset.frames([video])
     if frames:
@@ -503,8 +505,6 @@ def evaluate(predictions_path: Path, data_dir: Path | None = None, videos: list[
              out: Path | None = None, calib: Path | None = None, frames: str = "frames",
              plots: bool = True, max_gps_gap_s: float = 3.0, match_tolerance_s: float = 0.5) -> dict:
     """Score a predictions CSV; write summary/scores/plots under ``out`` when given. Returns the summary."""
-    from vessel_track.pipeline import load_camera, open_dataset
-
     dataset = open_dataset(data_dir)
     predictions = read_predictions(predictions_path)
     gps_track = dataset.gps_track()
@@ -562,7 +562,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="a frame is covered by a prediction this close in time, s (default 0.5)")
     args = parser.parse_args(argv)
     try:
-        from vessel_calib.dataset import parse_videos
 
         summary = evaluate(args.predictions, args.data, parse_videos(args.videos), args.out, args.calib,
                            args.frames, not args.no_plots, args.max_gps_gap, args.match_tolerance)

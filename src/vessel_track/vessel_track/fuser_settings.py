@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 
 from vessel_calib.errors import DataError
+from vessel_calib.params import node_blocks, read_params_yaml
+from vessel_calib.water_level import load_water_level
 from vessel_track.distance_model import BoxSizeDistanceModel
 from vessel_track.error_model import ErrorModel
 from vessel_track.fusion import CueStatistics, FusionConfig
@@ -73,8 +75,6 @@ class WaterLevelConfig:
 
     def load(self):
         """The ``WaterLevelTable`` of ``file`` (None without one); DataError naming the file if it is unusable."""
-        from vessel_calib.water_level import load_water_level
-
         return load_water_level(self.file)
 
 
@@ -233,7 +233,6 @@ def load_fuser_settings(path: Path | None, node: str = "fuser") -> FuserSettings
     """Settings from the ``node`` (else ``/**``) block of a parameter YAML; defaults when ``path`` is None."""
     if path is None:
         return FuserSettings()
-    from vessel_calib.params import node_blocks, read_params_yaml
 
     merged: dict = {}
     for block in node_blocks(read_params_yaml(path), node):

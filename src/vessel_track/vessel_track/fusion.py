@@ -27,7 +27,7 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_calib.errors import CalibrationError, DataError
-from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border
+from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_scale
 from vessel_track.error_model import ErrorModel
 from vessel_track.selection import OnlineTargetSelector, SelectionConfig
 from vessel_track.smoothing import FilterOutput, MotionConfig, WorldKalmanFilter
@@ -37,7 +37,7 @@ WEIGHT_MODES = ("fitted", "paper", "position_only")
 SCREEN_SOURCES = ("measured", "filtered")
 
 #: Covariance of the cues' ideal-y errors (position, width, height), px^2, measured leave-one-video-out on the
-#: hand boxes of training videos 7-12 (``python -m vessel_track.distance_model fit``).
+#: hand boxes of training videos 7-12 (``python -m vessel_track.distance_model_fit fit``).
 DEFAULT_CUE_COVARIANCE = (5.7147051439, -4.8621659687, -4.9854487734, -4.8621659687, 68.5918439092, 48.7700666298,
                           -4.9854487734, 48.7700666298, 54.709869639)
 PAPER_WEIGHTS = (0.5, 0.25, 0.25)
@@ -282,7 +282,6 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
     reason = np.full(n, REASON_OK)
     reason[~ok_input] = REASON_INVALID_INPUT
     depth = -np.asarray(camera.zp_of_world(np.nan_to_num(xw), np.nan_to_num(yw)), dtype=float)
-    from vessel_track.distance_model import depth_scale
 
     depth = depth / depth_scale(camera)
     above = ok_input & (~in_front | ~(depth >= config.min_depth_m))

@@ -218,8 +218,8 @@ def render_fuser_yaml(settings: FuserSettings) -> str:
     """``config/parts/fuser.yaml``: the fuser block with every parameter and its description as a comment."""
     lines = ["# Fuser node (vessel_track fuser): screen tracks -> sea-plane tracks. Written by",
              "# `python -m vessel_track.node_params render`; distance_model/fusion.cue_* from",
-             "# `python -m vessel_track.distance_model fit`, error_model from",
-             "# `python -m vessel_track.error_model fit`.",
+             "# `python -m vessel_track.distance_model_fit fit`, error_model from",
+             "# `python -m vessel_track.error_model_fit fit`.",
              "fuser:", "  ros__parameters:"]
     for name, (default, description) in FUSER_TOPICS.items():
         lines.append(f"    {name}: {_yaml_value(default)}  # {description}")

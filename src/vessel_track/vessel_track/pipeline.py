@@ -40,138 +40,32 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib import geodesy
+from vessel_calib.calibration import calibrate_from_labels
 from vessel_calib.errors import DataError, VesselError
 from vessel_calib.params import atomic_write_text
+from vessel_calib.paths import parse_videos
+from vessel_track import appearance
+from vessel_track.distance_model_fit import cross_validated_cue_statistics, fit_distance_model, training_pairs
+from vessel_track.evaluation import evaluate, format_table
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
 from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.offline_data import (
+    PREDICTION_HEADER,
+    DetectionFrame,
+    atomic_lines,
+    csv_detections,
+    default_params_path,
+    label_detections,
+    load_camera,
+    open_dataset,
+    prediction_line,
+    seconds_of_day,
+)
 from vessel_track.selection import Trajectory, select_target
 from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
+from vessel_track.tracker import MultiTargetTracker, TrackerConfig, load_tracker_config
 
 MODES = ("online", "offline")
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Inputs
-
-
-def open_dataset(data_dir: Path | None):
-    """The dataset at ``data_dir`` (default: $VESSEL_DATA or ../shared/aitas); DataError if none."""
-    from vessel_calib.dataset import Dataset, default_data_dir
-
-    if data_dir is None:
-        data_dir = default_data_dir()
-        if data_dir is None:
-            raise DataError("no dataset: pass --data DIR or set VESSEL_DATA (default ../shared/aitas is absent)")
-    return Dataset(data_dir)
-
-
-def default_calibration_path() -> Path | None:
-    """``config/aitas_camera.yaml`` of the project, if it exists (the project's fitted calibration)."""
-    from vessel_calib.dataset import repo_root
-
-    path = repo_root() / "config" / "aitas_camera.yaml"
-    return path if path.is_file() else None
-
-
-def default_params_path() -> Path | None:
-    """The project's parameter file with a fuser block: config/aitas.yaml, else config/parts/fuser.yaml."""
-    import yaml
-
-    from vessel_calib.dataset import repo_root
-
-    for candidate in (repo_root() / "config" / "aitas.yaml", repo_root() / "config" / "parts" / "fuser.yaml"):
-        try:
-            document = yaml.safe_load(candidate.read_text(encoding="utf-8")) if candidate.is_file() else None
-        except (OSError, yaml.YAMLError):
-            document = None
-        if isinstance(document, dict) and isinstance(document.get("fuser"), dict):
-            return candidate
-    return None
-
-
-def load_camera(calib: Path | None, dataset=None):
-    """(camera model, description) for a run.
-
-    ``calib`` if given; else the project's calibration if it belongs to this dataset's camera (same position
-    within 10 m); else the dataset's paper-corrected calibration.
-    """
-    from vessel_calib.params import load_camera_yaml
-
-    if calib is not None:
-        return load_camera_yaml(calib), str(calib)
-    default = default_calibration_path()
-    if default is not None:
-        camera = load_camera_yaml(default)
-        if dataset is None or geodesy.haversine_m(camera.camera_lat, camera.camera_lon, dataset.camera_lat,
-                                                  dataset.camera_lon) < 10.0:
-            return camera, str(default)
-    if dataset is None:
-        raise DataError("no calibration: pass --calib FILE.yaml")
-    return dataset.camera_model(), f"{dataset.path / 'camera.json'} (paper, corrected)"
-
-
-@dataclass
-class DetectionFrame:
-    """The detections of one frame."""
-
-    video: int
-    frame: int
-    stamp: float
-    boxes: np.ndarray    # (N, 4) x1, y1, x2, y2 px
-    scores: np.ndarray   # (N,)
-
-
-def label_detections(dataset, videos) -> list[DetectionFrame]:
-    """The hand-labelled primary boxes as detections (score 1), one frame per labelled frame."""
-    grouped: dict[tuple[int, int], list] = defaultdict(list)
-    for record in dataset.labels(videos, primary_only=True):
-        grouped[(record.video, record.frame)].append(record)
-    frames = []
-    for (video, frame), records in sorted(grouped.items()):
-        boxes = np.array([[r.x1, r.y1, r.x2, r.y2] for r in records], dtype=float)
-        frames.append(DetectionFrame(video, frame, records[0].stamp, boxes, np.ones(len(records))))
-    if not frames:
-        raise DataError(f"{dataset.path}: no labelled boxes in videos {videos}; use --detections FILE.csv")
-    return frames
-
-
-def csv_detections(path: Path, dataset, videos) -> list[DetectionFrame]:
-    """Detector output CSV -> frames; every frames.csv frame of ``videos`` is a frame (empty if no rows).
-
-    A row for a frame not in frames.csv is timed by linear interpolation of frame numbers within its video.
-    Rows with non-numeric values raise DataError naming the row.
-    """
-    from vessel_detect.detections_csv import read_detections_csv
-
-    path = Path(path)
-    grouped = read_detections_csv(path, "write one with `./vessel detect run ... --out FILE.csv` or use "
-                                        "--detections labels")
-    wanted = None if videos is None else set(videos)
-    rows = {key: np.column_stack([boxes, scores]) for key, (boxes, scores) in grouped.items()
-            if wanted is None or key[0] in wanted}
-    frame_records = dataset.frames(videos)
-    stamps = {(f.video, f.frame): f.stamp for f in frame_records}
-    keys = set(stamps) | set(rows)
-    by_video: dict[int, list] = defaultdict(list)
-    for f in frame_records:
-        by_video[f.video].append((f.frame, f.stamp))
-    frames = []
-    for video, frame in sorted(keys):
-        stamp = stamps.get((video, frame))
-        if stamp is None:
-            known = sorted(by_video.get(video, []))
-            if len(known) < 2:
-                raise DataError(f"{path}: video {video} frame {frame} is not in frames.csv and the video has too "
-                                f"few frames to time it")
-            stamp = float(np.interp(frame, [k[0] for k in known], [k[1] for k in known],
-                                    left=math.nan, right=math.nan))
-            if not math.isfinite(stamp):
-                f0, t0 = known[0] if frame < known[0][0] else known[-2]
-                f1, t1 = known[1] if frame < known[0][0] else known[-1]
-                stamp = t0 + (frame - f0) * (t1 - t0) / (f1 - f0)
-        values = np.asarray(rows.get((video, frame), np.zeros((0, 5))), dtype=float).reshape(-1, 5)
-        frames.append(DetectionFrame(video, frame, stamp, values[:, :4], values[:, 4]))
-    return frames
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -258,8 +152,6 @@ class PipelineConfig:
 
 def run_video(frames: list[DetectionFrame], camera, config: PipelineConfig) -> VideoResult:
     """Run one video's frames (sorted by stamp here) through tracker, fuser and selection."""
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
-
     if not frames:
         raise DataError("pipeline: no frames to run")
     frames = sorted(frames, key=lambda f: f.stamp)
@@ -416,9 +308,6 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
     other than this one; the rest of ``config.settings`` is kept. Used to fit the error model on scores the
     calibration has not seen.
     """
-    from vessel_calib.calibration import calibrate_from_labels
-    from vessel_track.distance_model import cross_validated_cue_statistics, fit_distance_model, training_pairs
-
     by_video: dict[int, list[DetectionFrame]] = defaultdict(list)
     for frame in frames:
         by_video[frame.video].append(frame)
@@ -438,28 +327,12 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
 # Outputs
 
 
-def _seconds_of_day(stamp: float) -> float:
-    return stamp % 86400.0
-
-
-def _atomic_lines(path: Path, lines: list[str]) -> None:
-    atomic_write_text(path, "\n".join(lines) + "\n")
-
-
-PREDICTION_HEADER = "video,t_utc_s,lat,lon"
-
-
-def prediction_line(video: int, stamp: float, lat: float, lon: float) -> str:
-    """One row of ``predictions.csv``: the time as UTC seconds of the day, as ``./vessel eval`` reads it."""
-    return f"{int(video)},{_seconds_of_day(stamp):.3f},{float(lat):.8f},{float(lon):.8f}"
-
-
 def write_predictions_csv(path: Path, results: list[VideoResult]) -> None:
     """``video,t_utc_s,lat,lon`` for the vessel of interest."""
     lines = [PREDICTION_HEADER]
     for result in results:
         lines += [prediction_line(p.video, p.stamp, p.lat, p.lon) for p in result.predictions]
-    _atomic_lines(Path(path), lines)
+    atomic_lines(Path(path), lines)
 
 
 TRACK_COLUMNS = ("video,frame,t_utc_s,track_id,status,is_target,score,confidence,updated,has_world,x_east_m,"
@@ -478,12 +351,12 @@ def write_tracks_csv(path: Path, results: list[VideoResult]) -> None:
             wt = row.world
             mx, my = (wt.measured_position if wt.measured_position is not None else (math.nan, math.nan))
             lines.append(",".join([
-                str(row.video), str(row.frame), f"{_seconds_of_day(row.stamp):.3f}", wt.screen.track_id,
+                str(row.video), str(row.frame), f"{seconds_of_day(row.stamp):.3f}", wt.screen.track_id,
                 str(int(wt.screen.status)), str(int(wt.is_target)), num(wt.score), num(wt.screen.confidence),
                 str(int(wt.screen.updated)), str(int(wt.has_world)), num(wt.position[0]), num(wt.position[1]),
                 num(wt.latitude, ".8f"), num(wt.longitude, ".8f"), num(wt.distance_m), num(wt.bearing_deg, ".2f"),
                 num(wt.expected_error_m), num(mx), num(my)]))
-    _atomic_lines(Path(path), lines)
+    atomic_lines(Path(path), lines)
 
 
 def write_target_measurement_csvs(folder: Path, results: list[VideoResult], camera_lat: float,
@@ -506,15 +379,13 @@ def write_target_measurement_csvs(folder: Path, results: list[VideoResult], came
             measured.append(prediction_line(row.video, row.stamp, lat, lon))
             filtered.append(prediction_line(row.video, row.stamp, wt.latitude, wt.longitude))
     paths = (Path(folder) / "target_measured.csv", Path(folder) / "target_filtered.csv")
-    _atomic_lines(paths[0], measured)
-    _atomic_lines(paths[1], filtered)
+    atomic_lines(paths[0], measured)
+    atomic_lines(paths[1], filtered)
     return paths
 
 
 def _filter_against_its_boxes(out: Path, results: list[VideoResult], camera, dataset, videos) -> str:
     """Lines comparing the published target with its own boxes back-projected, on the same frames, per split."""
-    from vessel_track.evaluation import evaluate
-
     measured_path, filtered_path = write_target_measurement_csvs(out, results, camera.camera_lat, camera.camera_lon)
     scored = {name: evaluate(path, dataset.path, videos, None, None, "frames", False)
               for name, path in (("measured", measured_path), ("filtered", filtered_path))}
@@ -575,7 +446,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-plots", action="store_true", help="score without plots")
     args = parser.parse_args(argv)
     try:
-        from vessel_calib.dataset import parse_videos
 
         dataset = open_dataset(args.data)
         videos = parse_videos(args.videos)
@@ -592,13 +462,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             frames = csv_detections(Path(args.detections), dataset, videos)
             if args.appearance is not None:
-                from vessel_track import appearance
 
                 model = appearance.AppearanceModel.load(args.appearance)
                 frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
                                             args.appearance_combine, args.appearance_min, camera,
                                             args.appearance_nested)
-        from vessel_track.tracker import load_tracker_config
 
         config = PipelineConfig(args.mode, args.screen_source, args.max_coast, load_tracker_config(params_path),
                                 settings)
@@ -616,7 +484,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{sum(len(r.predictions) for r in results)} predictions from {len(frames)} frames "
               f"({args.mode}, camera: {camera_source}, parameters: {params_path or 'defaults'}) -> {args.out}")
         if not args.no_eval:
-            from vessel_track.evaluation import evaluate, format_table
 
             coverage_frames = "labels" if args.detections == "labels" else "frames"
             summary = evaluate(args.out / "predictions.csv", dataset.path, videos, args.out, args.calib,

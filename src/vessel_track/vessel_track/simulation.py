@@ -19,7 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vessel_calib.camera_model import CameraModel
 from vessel_calib.errors import DataError
+from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
 CHALLENGE_H = ((-441.0, 379.0, -1000.0), (-217.0, -56.5, -548.0), (-0.512, -0.144, 1.0))
 """The paper's homography of the challenge camera with its sign typo corrected (``aitas/camera.json``)."""
@@ -31,8 +33,6 @@ MOORING_POST_XYXY = (697.0, 652.0, 925.0, 720.0)
 
 def challenge_camera():
     """The challenge camera: the paper's corrected calibration (H, K1, centre (640, 360), 1280x720)."""
-    from vessel_calib.camera_model import CameraModel
-
     return CameraModel(CHALLENGE_H, CHALLENGE_K1, center=(640.0, 360.0), image_size=(1280, 720),
                        camera_lat=CHALLENGE_CAMERA_LATLON[0], camera_lon=CHALLENGE_CAMERA_LATLON[1])
 
@@ -524,7 +524,6 @@ def benchmark(intervals: Sequence[float], seeds: int, settings: dict, duration_s
     """Run the tracker on a scenario of ``SCENARIOS`` for every interval and seed; one row per interval."""
     import time
 
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
     config = TrackerConfig.from_dict(settings)
     rows = []

@@ -40,7 +40,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.optimize import linear_sum_assignment
 
-from vessel_calib.errors import DataError
+from vessel_calib.errors import CalibrationError, DataError
+from vessel_calib.params import node_blocks, read_params_yaml
 
 PROCESS_NOISE_MODELS = ("continuous_wna", "discrete_wna", "paper")
 ASSOCIATION_METHODS = ("global", "greedy")
@@ -235,8 +236,6 @@ def load_tracker_config(path, node: str = "tracker") -> TrackerConfig:
     """
     if path is None:
         return TrackerConfig()
-    from vessel_calib.errors import CalibrationError
-    from vessel_calib.params import node_blocks, read_params_yaml
 
     try:
         blocks = read_params_yaml(path)

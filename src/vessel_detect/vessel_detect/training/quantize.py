@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.dataset import repo_file
 from vessel_calib.errors import DataError, ModelError
+from vessel_calib.paths import repo_file
 from vessel_detect.training.augment import band_input
 
 
@@ -65,7 +65,7 @@ def cmd_quantize(args: argparse.Namespace) -> int:
     """Quantize and report the size."""
     import cv2
 
-    from vessel_detect.detect_cli import _open_dataset, _parse_videos
+    from vessel_detect.dataset_detection import open_dataset, parse_video_spec
     from vessel_detect.detector import OnnxModel
 
     model, out = Path(args.model), Path(args.out)
@@ -74,8 +74,8 @@ def cmd_quantize(args: argparse.Namespace) -> int:
 
     calib = args.calib or repo_file("config/aitas_camera.yaml")
     camera = load_camera_yaml(calib) if calib else None
-    dataset = _open_dataset(args.data)
-    frames = dataset.frames(_parse_videos(args.videos))
+    dataset = open_dataset(args.data)
+    frames = dataset.frames(parse_video_spec(args.videos))
     step = max(1, len(frames) // max(1, args.frames))
     images = [im for im in (cv2.imread(str(f.path)) for f in frames[::step][: args.frames]) if im is not None]
     quantize_model(model, out, [band_input(image, camera, onnx.input_hw, args.band_margin_px) for image in images])

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.dataset import repo_file, repo_root
 from vessel_calib.errors import DataError
+from vessel_calib.paths import repo_file, repo_root
 
 
 def add_parser(sub) -> None:
@@ -85,7 +85,7 @@ def coco_detections(args, dataset, frames, camera) -> dict:
 
     if args.coco_detections:
         return read_detections_csv(Path(args.coco_detections))
-    from vessel_detect.detect_cli import detect_frames, detections_csv_text
+    from vessel_detect.dataset_detection import detect_frames, detections_csv_text
     from vessel_detect.detector_params import build_detector, load_params_file
 
     values, _ = load_params_file(args.coco_params)
@@ -102,7 +102,7 @@ def coco_detections(args, dataset, frames, camera) -> dict:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Generate labels, train, export, and describe the model."""
-    from vessel_detect.detect_cli import _camera_for, _open_dataset, _parse_videos
+    from vessel_detect.dataset_detection import camera_for, open_dataset, parse_video_spec
     from vessel_detect.detector_params import load_params_file
     from vessel_detect.model_store import ModelSpec, resolve_model
     from vessel_detect.training.augment import AugmentSettings, band_input
@@ -121,11 +121,11 @@ def cmd_train(args: argparse.Namespace) -> int:
                              augment=AugmentSettings(crop_wh=crop))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
-    dataset = _open_dataset(args.data)
-    videos = _parse_videos(args.videos)
-    val_videos = _parse_videos(args.val_videos) if args.val_videos else videos
+    dataset = open_dataset(args.data)
+    videos = parse_video_spec(args.videos)
+    val_videos = parse_video_spec(args.val_videos) if args.val_videos else videos
     _, params_camera = load_params_file(args.params)
-    camera = _camera_for(dataset, params_camera, args.calib)
+    camera = camera_for(dataset, params_camera, args.calib)
     if camera is None:
         raise DataError("no calibration: pass --calib FILE.yaml (labels are the GPS projected through it)")
     frames = dataset.frames(videos)

@@ -1,0 +1,148 @@
+"""The source modules form layers that import only downward, with no import cycle and no ROS in the core.
+
+Layers, lowest first (a module may import its own layer and those below):
+
+- ``common``: errors, paths, geodesy, the packages' ``__init__``;
+- ``core``: ROS-free runtime code: camera model, parameter files, detector and its decoding, tracker, fusion,
+  selection, smoothing, the runtime halves of the distance and error models;
+- ``ros``: ROS plumbing shared by nodes and tools: node support, parameter declarations, bag I/O, image sources;
+- ``nodes``: the rclpy nodes;
+- ``tools``: offline tools: data-folder loaders, calibration fit, pipeline, evaluation, fitting, training, bags;
+- ``apps``: what runs the graph: demo, bench, graph runner, replay check.
+
+Every import counts, inside functions too. A new module must be given a layer here.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("vessel_calib", "vessel_detect", "vessel_track")
+LAYERS = ("common", "core", "ros", "nodes", "tools", "apps")
+ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_interfaces", "rosbags", "mcap")
+
+_BY_LAYER = {
+    "common": """vessel_calib vessel_calib.errors vessel_calib.paths vessel_calib.geodesy vessel_detect
+                 vessel_detect.training vessel_track""",
+    "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
+               vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
+               vessel_detect.image_codec vessel_detect.appearance_model vessel_detect.detector
+               vessel_detect.model_store vessel_detect.detector_params vessel_detect.detections_csv
+               vessel_detect.recall vessel_track.tracker vessel_track.fusion vessel_track.selection
+               vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
+               vessel_track.fuser_settings""",
+    "ros": """vessel_calib.node_support vessel_detect.bag_io vessel_detect.ros_messages vessel_detect.sources
+              vessel_track.node_params""",
+    "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
+                vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
+                vessel_track.gps_publisher_node""",
+    "tools": """vessel_calib.dataset vessel_calib.calibration vessel_calib.calibration_plot
+                vessel_calib.gps_association vessel_calib.calibrate_node vessel_detect.dataset_detection
+                vessel_detect.detect_cli vessel_detect.frame_boxes vessel_detect.bag_build vessel_detect.synthetic
+                vessel_detect.onnx_synthetic vessel_detect.training.augment vessel_detect.training.labels
+                vessel_detect.training.loss vessel_detect.training.model vessel_detect.training.model_card
+                vessel_detect.training.quantize vessel_detect.training.settings vessel_detect.training.train_cli
+                vessel_detect.training.trainer vessel_track.offline_data vessel_track.pipeline
+                vessel_track.evaluation vessel_track.appearance vessel_track.distance_model_fit
+                vessel_track.error_model_fit vessel_track.simulation""",
+    "apps": """vessel_detect.bench_detector vessel_detect.replay_check vessel_track.demo vessel_track.demo_report
+               vessel_track.bench vessel_track.graph""",
+}
+LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
+
+
+def _modules() -> dict[str, Path]:
+    found = {}
+    for package in PACKAGES:
+        root = REPO / "src" / package
+        for path in sorted((root / package).rglob("*.py")):
+            parts = path.relative_to(root).with_suffix("").parts
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _imports(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module)
+            names |= {f"{node.module}.{alias.name}" for alias in node.names}
+    return names
+
+
+def _graph() -> dict[str, set[str]]:
+    modules = _modules()
+    return {name: {other for other in _imports(path) if other in modules and other != name}
+            for name, path in modules.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_every_module_has_a_layer():
+    missing = sorted(set(_modules()) - set(LAYER_OF))
+    stale = sorted(set(LAYER_OF) - set(_modules()))
+    assert not missing, f"give these modules a layer in test/test_layers.py: {missing}"
+    assert not stale, f"test/test_layers.py names modules that do not exist: {stale}"
+
+
+def test_no_import_cycle():
+    assert _cycles(_graph()) == []
+
+
+def test_imports_go_only_downward():
+    rank = {layer: i for i, layer in enumerate(LAYERS)}
+    upward = sorted(f"{module} ({LAYER_OF[module]}) imports {other} ({LAYER_OF[other]})"
+                    for module, others in _graph().items() for other in others
+                    if module in LAYER_OF and other in LAYER_OF and rank[LAYER_OF[other]] > rank[LAYER_OF[module]])
+    assert not upward, "\n".join(upward)
+
+
+def test_the_core_imports_no_ros():
+    modules = _modules()
+    ros = sorted(f"{module} imports {name}" for module, path in modules.items()
+                 if LAYER_OF.get(module) in ("common", "core")
+                 for name in _imports(path)
+                 if name.split(".")[0] in ROS_MODULES or name.split(".")[0].endswith("_msgs"))
+    assert not ros, "\n".join(ros)
+
+
+def test_the_checks_catch_a_cycle_and_an_upward_import():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
