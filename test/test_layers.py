@@ -48,7 +48,7 @@ _BY_LAYER = {
                 vessel_track.evaluation vessel_track.appearance vessel_track.distance_model_fit
                 vessel_track.error_model_fit vessel_track.simulation""",
     "apps": """vessel_detect.bench_detector vessel_detect.replay_check vessel_track.demo vessel_track.demo_report
-               vessel_track.bench vessel_track.graph""",
+               vessel_track.bench vessel_track.bench_live vessel_track.graph""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 

@@ -1,0 +1,65 @@
+"""``./vessel bench live``: its figures from counters and arrivals, its command line, and a short real stream."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from vessel_track import bench_live
+from vessel_track.bench import ArrivalLog
+
+
+def test_counters_are_read_from_the_named_node_only():
+    diagnostics = {"/detector": {"count.frames_processed": "12"}, "camera": {"count.frames_sent": "300"}}
+    assert bench_live._counter(diagnostics, "detector", "frames_processed") == 12
+    assert bench_live._counter(diagnostics, "camera", "frames_sent") == 300
+    assert bench_live._counter(diagnostics, "tracker", "frames") == 0
+
+
+def test_latency_pairs_each_fix_with_its_own_image_inside_the_window():
+    watcher = SimpleNamespace(log=ArrivalLog((bench_live.IMAGE_TOPIC, bench_live.FIX_TOPIC)))
+    for stamp, image_ns, fix_ns in ((1, 1_000_000, 301_000_000), (2, 2_000_000_000, 2_500_000_000), (3, 9e9, 9.1e9)):
+        watcher.log.add(bench_live.IMAGE_TOPIC, stamp, image_ns, int(image_ns))
+        watcher.log.add(bench_live.FIX_TOPIC, stamp, fix_ns, int(fix_ns))
+    watcher.log.add(bench_live.IMAGE_TOPIC, 4, 3_000_000_000, 3_000_000_000)  # an image the detector dropped
+    assert sorted(bench_live._latencies_s(watcher, 0, 5_000_000_000)) == pytest.approx([0.3, 0.5], abs=1e-6)
+
+
+def test_figures_count_drops_and_losses_and_fit_memory_growth():
+    args = SimpleNamespace(fps=25.0)
+    start = {"frames_sent": 100, "frames_received": 90, "frames_processed": 20, "dropped_frames": 60, "fixes": 15}
+    end = {"frames_sent": 1600, "frames_received": 1580, "frames_processed": 220, "dropped_frames": 1350,
+           "fixes": 210}
+    samples = {"detector": [(0.0, 300.0), (60.0, 301.0), (120.0, 302.0)]}
+    result = bench_live._figures(args, "frames/13", start, end, samples, [0.4, 0.5], [0.4], [0.5], 60.0)
+    assert result["frames_offered"] == 1500 and result["frames_processed"] == 200
+    assert result["frames_dropped_by_detector"] == 1290 and result["frames_lost_in_transport"] == 10
+    assert result["memory"]["detector"]["growth_mb_per_min"] == pytest.approx(1.0)
+    assert "dropped by the detector 1290" in bench_live.format_report(result)
+
+
+@pytest.mark.parametrize("bad", [["--fps", "0"], ["--minutes", "nan"], ["--warmup-s", "-1"]])
+def test_bad_arguments_are_one_line_errors(bad, capsys):
+    with pytest.raises(SystemExit) as raised:
+        bench_live.parse_args(bad)
+    assert raised.value.code == 2 and "must be" in capsys.readouterr().err
+
+
+def test_a_short_live_stream_reports_every_figure(ros_env, data_dir, model_path, tmp_path):
+    out = tmp_path / "live.json"
+    done = subprocess.run([sys.executable, "-m", "vessel_track.bench_live", "--minutes", "0.25", "--warmup-s", "8",
+                           "--out", str(out), "--log-dir", str(tmp_path / "logs")], env=ros_env, capture_output=True,
+                          text=True, timeout=240)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(out.read_text())
+    assert result["frames_offered"] > 100  # 25 frames/s for 15 s
+    assert 0 < result["frames_processed"] < result["frames_offered"]
+    assert result["frames_dropped_by_detector"] > 0
+    assert result["latency_image_to_fix_ms"]["n"] > 0 and math.isfinite(result["latency_image_to_fix_ms"]["p95"])
+    assert set(result["memory"]) >= {"camera", "detector", "tracker", "fuser", "gps_publisher"}
+    assert "latency image -> fix" in done.stdout
