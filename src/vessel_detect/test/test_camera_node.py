@@ -266,3 +266,48 @@ def test_a_managed_camera_with_a_bad_source_fails_to_configure(tmp_path):
         output, _ = process.communicate(timeout=30)
         probe.close()
     assert "configure failed" in output and "missing" in output and "Traceback" not in output
+
+
+def test_a_replay_cut_by_ctrl_c_ends_quietly(tmp_path, monkeypatch):
+    """Ctrl-C shuts the ROS context down before the node's close(): a publish in flight then fails. That is the
+    end of the run, not an error: no traceback from the replay thread, exit status 0.
+    """
+    import threading
+
+    import cv2
+    import numpy as np
+
+    from vessel_detect.camera_node import CameraNode
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:05d}.jpg"), np.full((72, 128, 3), 40 * i, dtype=np.uint8))
+    thread_errors = []
+    monkeypatch.setattr(threading, "excepthook", thread_errors.append)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(101, 200)))
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["camera", "--ros-args", "-p", f"source:={folder}", "-p", "loop:=true",
+                                      "-p", "fps:=50.0"])
+    monkeypatch.setattr(rclpy.node.Node, "__init__", _with_context(rclpy.node.Node.__init__, context))
+    node = CameraNode()
+    try:
+        deadline = time.monotonic() + 20
+        while node.stats.sent < 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert node.stats.sent >= 5
+        rclpy.shutdown(context=context)  # what Ctrl-C does first
+        node._worker.join(timeout=5)
+        assert not node._worker.is_alive()
+        assert thread_errors == [] and node.exit_status == 0
+    finally:
+        node.close()
+        rclpy.try_shutdown(context=context)
+
+
+def _with_context(init, context):
+    def wrapped(self, *args, **kwargs):
+        kwargs.setdefault("context", context)
+        init(self, *args, **kwargs)
+
+    return wrapped

@@ -289,10 +289,16 @@ class _CameraPhases:
             self.health.set_status(DiagnosticStatus.ERROR, f"source failed: {error}")
             self.exit_status = 1
         except Exception as error:  # the worker must report, not vanish silently
+            if self._shutting_down():  # Ctrl-C shut the context down under a publish: not an error
+                return
             self.get_logger().error(f"replay stopped by an unexpected error: {error!r}")
             self.exit_status = 1
         finally:
             self._end()
+
+    def _shutting_down(self) -> bool:
+        """Stop was asked for, or the ROS context is gone (Ctrl-C reaches rclpy before ``close``)."""
+        return self._stop.is_set() or not self.context.ok()
 
     def _wait_for_subscribers(self) -> None:
         """Hold the first frame until the consumers are matched (see the wait_for_subscribers parameter)."""
@@ -469,7 +475,7 @@ class _CameraPhases:
             f"{s.aux_sent} other messages" + (f", {s.late} late" if s.late else "")
             + (f", {s.ack_timeouts} ack timeouts" if s.ack_timeouts else "")
         )
-        if self._stop.is_set():
+        if self._shutting_down():
             return
         if self.damage:
             self.exit_status = 1
