@@ -269,8 +269,9 @@ def test_a_managed_camera_with_a_bad_source_fails_to_configure(tmp_path):
 
 
 def test_a_replay_cut_by_ctrl_c_ends_quietly(tmp_path, monkeypatch):
-    """Ctrl-C shuts the ROS context down before the node's close(): a publish in flight then fails. That is the
-    end of the run, not an error: no traceback from the replay thread, exit status 0.
+    """A replay whose context Ctrl-C shut down under a publish ends quietly: no traceback, exit status 0.
+
+    rclpy's signal handler shuts the context down before the node's close() stops the replay thread.
     """
     import threading
 
