@@ -35,6 +35,10 @@ from vessel_calib.calibration import (
 from vessel_calib.camera_model import CameraModel, box_points
 from vessel_calib.errors import CalibrationError
 
+#: The consensus search scores cameras up to this many times ``max_nadir_m`` from the given position (a 4-point
+#: hypothesis is noisy); the final camera must be within ``max_nadir_m``.
+OFFSET_SLACK = 5.0
+
 
 @dataclass(frozen=True)
 class FrameBoxes:
@@ -291,6 +295,7 @@ def _consensus_search(world, anchors, scores, center, options: SearchOptions, ba
     gate2 = options.gates_px[0] ** 2
     kept: list[tuple[float, int, np.ndarray, float]] = []
     scored = 0
+    misplaced = [0, math.nan]  # the best camera the offset check rejected: frames it explains, its offset (m)
     for start in range(0, options.hypotheses, batch):
         b = min(batch, options.hypotheses - start)
         frames = _distinct_draws(rng, usable, b)
@@ -305,6 +310,17 @@ def _consensus_search(world, anchors, scores, center, options: SearchOptions, ba
         H = np.where((np.median(zp, axis=1) > 0)[:, None, None], -H, H)
         zp = np.where((np.median(zp, axis=1) > 0)[:, None], -zp, zp)
         good = spread_ok & np.all(zp < 0, axis=1) & np.isfinite(H).all(axis=(1, 2))
+        physical, offset = _physical(H[good], center, options)
+        near = offset <= OFFSET_SLACK * options.max_nadir_m
+        far = np.flatnonzero(good)[physical & ~near]
+        good[good] = physical & near
+        if far.size:
+            far_predicted, far_ok = _project_batch(H[far], k1[far], center, world)
+            far_d2, _ = _nearest(far_predicted, far_ok, anchors)
+            far_inliers = np.sum(far_d2 < gate2, axis=1)
+            i = int(np.argmax(far_inliers))
+            if far_inliers[i] > misplaced[0]:
+                misplaced[:] = [int(far_inliers[i]), float(offset[physical & ~near][i])]
         if not good.any():
             continue
         H, k1 = H[good], k1[good]
@@ -320,7 +336,45 @@ def _consensus_search(world, anchors, scores, center, options: SearchOptions, ba
         if len(distinct) >= options.candidates_refined:
             break
         distinct.append((H, k1, cost))
-    return distinct, scored
+    return distinct, scored, misplaced
+
+
+def _physical(H: np.ndarray, center: np.ndarray, options: SearchOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Which homographies an upright pinhole camera above the sea could give, and how far from the origin it stands.
+
+    ``CameraModel.pinhole`` batched, with loose shape limits (a 4-point hypothesis is noisy): a (B,) mask and the
+    (B,) camera offsets in metres.
+
+    A free homography explains one boat's track through many impossible cameras; scoring only possible ones keeps
+    the search on cameras that exist.
+    """
+    cx, cy = center
+    a = H[:, 0, :] - cx * H[:, 2, :]
+    b = H[:, 1, :] - cy * H[:, 2, :]
+    c = H[:, 2, :]
+    p, q = a[:, 0] * a[:, 1] + b[:, 0] * b[:, 1], c[:, 0] * c[:, 1]
+    r = a[:, 0] ** 2 + b[:, 0] ** 2 - a[:, 1] ** 2 - b[:, 1] ** 2
+    s = c[:, 0] ** 2 - c[:, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_f2 = -(p * q + r * s) / (p * p + r * r)
+        ok = np.isfinite(inv_f2) & (inv_f2 > 0)
+        f = 1.0 / np.sqrt(np.where(ok, inv_f2, 1.0))
+        ok &= (f >= options.focal_range_px[0]) & (f <= options.focal_range_px[1])
+        M = np.stack([a / f[:, None], b / f[:, None], c], axis=1)
+        n1, n2 = np.linalg.norm(M[:, :, 0], axis=1), np.linalg.norm(M[:, :, 1], axis=1)
+        scale = -1.0 / np.sqrt(n1 * n2)
+        r1, r2, t = (M[:, :, k] * scale[:, None] for k in range(3))
+        aspect = n1 / n2
+        skew = np.abs(np.sum(r1 * r2, axis=1)) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
+        ok &= np.isfinite(aspect) & (aspect > 0.5) & (aspect < 2.0) & (skew < 0.3)
+    if not ok.any():
+        return ok, np.full(len(H), np.inf)
+    rotation = np.stack([r1, r2, np.cross(r1, r2)], axis=2)
+    rotation = np.where(ok[:, None, None], rotation, np.eye(3))
+    u, _, vt = np.linalg.svd(rotation)
+    centre = -np.einsum("bji,bj->bi", u @ vt, np.where(ok[:, None], t, 0.0))
+    ok &= (centre[:, 2] >= options.height_range_m[0]) & (centre[:, 2] <= options.height_range_m[1])
+    return ok, np.hypot(centre[:, 0], centre[:, 1])
 
 
 def _distinct_draws(rng, population: np.ndarray, rows: int) -> np.ndarray:
@@ -422,7 +476,7 @@ def associate_and_calibrate(frames: list[FrameBoxes], camera_lat: float, camera_
         raise CalibrationError(
             f"only {with_boxes} of {len(frames)} frames have a detected boat: at least {options.min_associations} "
             "are needed")
-    hypotheses, scored = _consensus_search(world, anchors, scores, center_arr, options)
+    hypotheses, scored, misplaced = _consensus_search(world, anchors, scores, center_arr, options)
     best: tuple[int, float, Association] | None = None
     reasons: list[str] = []
     for H, k1, _cost in hypotheses:
@@ -454,9 +508,14 @@ def associate_and_calibrate(frames: list[FrameBoxes], camera_lat: float, camera_
         if best is None or count > best[0] or (count == best[0] and np.nanmedian(residual) < best[1]):
             best = (count, float(np.nanmedian(residual)), association)
     if best is None:
-        misplaced = [why for why in reasons if "given camera position" in why]
-        if misplaced:
-            raise CalibrationError(f"the best camera explaining the track is impossible here: {misplaced[0]}")
+        far = [why for why in reasons if "given camera position" in why]
+        if far:
+            raise CalibrationError(f"the best camera explaining the track is impossible here: {far[0]}")
+        if misplaced[0] >= options.min_associations:
+            raise CalibrationError(
+                f"the best camera explaining the track is impossible here: it would stand {misplaced[1]:.0f} m from "
+                f"the given camera position (allowed {options.max_nadir_m:g} m; it puts {misplaced[0]} frames' GPS "
+                "on a detected boat): check --camera-lat/--camera-lon")
         implausible = [why for why in reasons if why.startswith("the camera would") or why.startswith("the focal")]
         detail = f" (the best candidate: {implausible[0]})" if implausible else ""
         raise CalibrationError(
