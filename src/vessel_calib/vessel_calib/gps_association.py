@@ -14,7 +14,7 @@ in few. So:
    given camera position) and the associations must be enough and spread in range; otherwise CalibrationError
    and nothing is written.
 
-Core module: NumPy/SciPy only; the detector that makes the boxes is the caller's business.
+An offline tool (the tools layer): NumPy/SciPy only; the detector that makes the boxes is the caller's business.
 """
 
 from __future__ import annotations
