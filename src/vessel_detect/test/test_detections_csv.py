@@ -47,3 +47,12 @@ def test_p_target_is_written_and_read_as_the_confidence(tmp_path):
     old = tmp_path / "old.csv"  # files written before the column existed still read
     old.write_text("video,frame,x1,y1,x2,y2,score,class_id\n13,0,1,2,3,4,0.5,8\n")
     assert read_detections_csv(old)[(13, 0)][1].tolist() == [0.5]
+
+
+def test_the_reader_can_keep_the_detector_score_instead_of_p_target(tmp_path):
+    path = tmp_path / "d.csv"
+    path.write_text("video,frame,x1,y1,x2,y2,score,class_id,p_target\n7,0,1,2,3,4,0.6,1,0.05\n7,0,5,6,7,8,0.3,0,\n")
+    assert read_detections_csv(path)[(7, 0)][1].tolist() == [0.05, 0.3]
+    assert read_detections_csv(path, confidence="score")[(7, 0)][1].tolist() == [0.6, 0.3]
+    with pytest.raises(ValueError, match="confidence"):
+        read_detections_csv(path, confidence="p")

@@ -31,12 +31,15 @@ def csv_row(video: int, frame: int, box, score: float, class_id: int = COCO_BOAT
             str(int(class_id)), target]
 
 
-def read_detections_csv(path: Path, missing_hint: str = "write one with './vessel detect run'"
-                        ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+def read_detections_csv(path: Path, missing_hint: str = "write one with './vessel detect run'",
+                        confidence: str = "p_target") -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """(video, frame) -> (boxes (N, 4), confidences (N,)); DataError naming the file, and the row, for bad input.
 
-    A row's confidence is its ``p_target`` where the column is filled, else its ``score``.
+    A row's confidence is its ``p_target`` where the column is filled, else its ``score``; with
+    ``confidence="score"`` always the detector's score (a tool that wants every boat, not the vessel of interest).
     """
+    if confidence not in ("p_target", "score"):
+        raise ValueError(f"confidence must be 'p_target' or 'score', got {confidence!r}")
     path = Path(path)
     if not path.is_file():
         raise DataError(f"detections file {path} not found: {missing_hint}")
@@ -50,7 +53,7 @@ def read_detections_csv(path: Path, missing_hint: str = "write one with './vesse
             try:
                 key = (int(row["video"]), int(row["frame"]))
                 values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
-                target = (row.get("p_target") or "").strip()
+                target = (row.get("p_target") or "").strip() if confidence == "p_target" else ""
                 if target:
                     values[4] = float(target)
             except (TypeError, ValueError):

@@ -9,9 +9,9 @@ start time and a GPS track (CSV or GPX), so a new camera needs no data folder.
 from __future__ import annotations
 
 import csv
+import io
 import sys
 import time
-from collections import defaultdict
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -22,6 +22,7 @@ from vessel_calib.gps_association import FrameBoxes
 from vessel_calib.gps_track import GpsTrack
 from vessel_calib.params import atomic_write_text
 from vessel_calib.paths import repo_file
+from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import detector_config, load_params_file, open_model
 from vessel_detect.sources import VideoSource
@@ -41,34 +42,14 @@ def calibration_free_detector(params_path: str | None, image_wh: tuple[int, int]
     return VesselDetector(open_model(values), detector_config(values), None, tuple(int(v) for v in image_wh))
 
 
-def read_detections_csv(path) -> dict[tuple[int, int], np.ndarray]:
-    """``detect run`` CSV -> {(video, frame): (k, 5) x1, y1, x2, y2, score}."""
-    out: dict[tuple[int, int], list[list[float]]] = defaultdict(list)
-    path = Path(path)
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            missing = {"video", "frame", "x1", "y1", "x2", "y2", "score"} - set(reader.fieldnames or [])
-            if missing:
-                raise DataError(f"{path}: missing column(s) {', '.join(sorted(missing))}: give a `detect run` CSV")
-            for line, row in enumerate(reader, start=2):
-                try:
-                    key = (int(row["video"]), int(row["frame"]))
-                    out[key].append([float(row[k]) for k in ("x1", "y1", "x2", "y2", "score")])
-                except (TypeError, ValueError):
-                    raise DataError(f"{path}, line {line}: expected numbers in video,frame,x1,y1,x2,y2,score") from None
-    except OSError as exc:
-        raise DataError(f"cannot read detections {path}: {exc.strerror or exc}") from None
-    return {k: np.array(v, dtype=float) for k, v in out.items()}
+def _frame_boxes(video: int, frame: int, stamp: float, gps: tuple[float, float], boxes, scores) -> FrameBoxes:
+    return FrameBoxes(video, frame, float(stamp), float(gps[0]), float(gps[1]),
+                      np.asarray(boxes, dtype=float).reshape(-1, 4), np.asarray(scores, dtype=float).reshape(-1))
 
 
-def _frame_boxes(video: int, frame: int, stamp: float, track: GpsTrack, max_gap_s: float,
-                 boxes: np.ndarray) -> FrameBoxes | None:
+def _gps_at(track: GpsTrack, stamp: float, max_gap_s: float) -> tuple[float, float] | None:
     lat, lon, ok = track.interpolate(stamp, max_gap_s=max_gap_s)
-    if not ok:
-        return None
-    boxes = np.asarray(boxes, dtype=float).reshape(-1, 5)
-    return FrameBoxes(video, frame, float(stamp), float(lat), float(lon), boxes[:, :4], boxes[:, 4])
+    return (float(lat), float(lon)) if ok else None
 
 
 def _progress(index: int, total: int | None, started: float) -> None:
@@ -90,35 +71,40 @@ def dataset_frame_boxes(dataset, videos, detections: str | None = None, detector
     records = dataset.frames(videos)
     if not records:
         raise DataError(f"no frames for videos {videos or 'all'} in {dataset.path / 'frames.csv'}")
-    with_gps = [r for r in records if track.interpolate(r.stamp, max_gap_s=max_gap_s)[2]]
+    gps = {(r.video, r.frame): _gps_at(track, r.stamp, max_gap_s) for r in records}
+    with_gps = [r for r in records if gps[(r.video, r.frame)] is not None]
     if detections:
-        table = read_detections_csv(detections)
-        boxes = {(r.video, r.frame): table.get((r.video, r.frame), np.zeros((0, 5))) for r in with_gps}
+        table = read_detections_csv(detections, "write one with `--save-detections` or `./vessel detect run`",
+                                    confidence="score")
+        empty = (np.zeros((0, 4)), np.zeros(0))
+        boxes = {(r.video, r.frame): table.get((r.video, r.frame), empty) for r in with_gps}
     else:
         boxes = _detect_records(with_gps, detector_params, dataset.image_size, save_csv)
-    frames = [_frame_boxes(r.video, r.frame, r.stamp, track, max_gap_s, boxes[(r.video, r.frame)]) for r in with_gps]
-    return [f for f in frames if f is not None], len(records) - len(with_gps)
+    frames = [_frame_boxes(r.video, r.frame, r.stamp, gps[(r.video, r.frame)], *boxes[(r.video, r.frame)])
+              for r in with_gps]
+    return frames, len(records) - len(with_gps)
 
 
-def _detect_records(records, detector_params, image_wh, save_csv) -> dict[tuple[int, int], np.ndarray]:
+def _detect_records(records, detector_params, image_wh, save_csv) -> dict[tuple[int, int], tuple]:
+    """(video, frame) -> (boxes (k, 4), scores (k,)) of the calibration-free detector."""
     import cv2
 
     detector = calibration_free_detector(detector_params, image_wh)
-    out: dict[tuple[int, int], np.ndarray] = {}
+    out: dict[tuple[int, int], tuple] = {}
     started = time.monotonic()
     for index, record in enumerate(records, start=1):
         image = cv2.imread(str(record.path), cv2.IMREAD_COLOR)
         if image is None or not image.size:
             print(f"\nwarning: cannot read frame {record.path}; skipped", file=sys.stderr)
-            out[(record.video, record.frame)] = np.zeros((0, 5))
+            out[(record.video, record.frame)] = (np.zeros((0, 4)), np.zeros(0))
             continue
         dets = detector.detect(image)
-        out[(record.video, record.frame)] = np.column_stack([dets.boxes_xyxy, dets.scores]).reshape(-1, 5)
+        out[(record.video, record.frame)] = (dets.boxes_xyxy, dets.scores)
         if index % 10 == 0 or index == len(records):
             _progress(index, len(records), started)
     print(file=sys.stderr)
     if save_csv:
-        _save_detections(save_csv, ((v, f, b) for (v, f), b in out.items()))
+        _save_detections(save_csv, ((v, f, *found) for (v, f), found in out.items()))
     return out
 
 
@@ -138,8 +124,8 @@ def video_frame_boxes(video_path, start_utc: float, track: GpsTrack, every: int 
     started = time.monotonic()
     total = source.frame_count()
     for index, item in enumerate(source, start=1):
-        stamp = item.stamp
-        if not track.interpolate(stamp, max_gap_s=max_gap_s)[2]:
+        gps = _gps_at(track, item.stamp, max_gap_s)
+        if gps is None:
             without_gps += 1
             continue
         image = item.bgr()
@@ -148,11 +134,8 @@ def video_frame_boxes(video_path, start_utc: float, track: GpsTrack, every: int 
         if detector is None:
             detector = calibration_free_detector(detector_params, (image.shape[1], image.shape[0]))
         dets = detector.detect(image)
-        boxes = np.column_stack([dets.boxes_xyxy, dets.scores]).reshape(-1, 5)
-        rows.append((video_id, item.index, boxes))
-        found = _frame_boxes(video_id, item.index, stamp, track, max_gap_s, boxes)
-        if found is not None:
-            frames.append(found)
+        rows.append((video_id, item.index, dets.boxes_xyxy, dets.scores))
+        frames.append(_frame_boxes(video_id, item.index, item.stamp, gps, dets.boxes_xyxy, dets.scores))
         if index % 10 == 0:
             _progress(index, total, started)
     print(file=sys.stderr)
@@ -164,12 +147,14 @@ def video_frame_boxes(video_path, start_utc: float, track: GpsTrack, every: int 
     return frames, without_gps, first_image
 
 
-def _save_detections(path, rows: Iterable[tuple[int, int, np.ndarray]]) -> None:
-
-    lines = ["video,frame,x1,y1,x2,y2,score,class_id,p_target"]
-    for video, frame, boxes in rows:
-        for x1, y1, x2, y2, score in boxes:
-            lines.append(f"{video},{frame},{x1:.1f},{y1:.1f},{x2:.1f},{y2:.1f},{score:.4f},,")
-    atomic_write_text(Path(path), "\n".join(lines) + "\n")
-    print(f"wrote {path} ({len(lines) - 1} boxes)", file=sys.stderr)
-
+def _save_detections(path, rows: Iterable[tuple[int, int, np.ndarray, np.ndarray]]) -> None:
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    count = 0
+    for video, frame, boxes, scores in rows:
+        for box, score in zip(boxes, scores, strict=True):
+            writer.writerow(csv_row(video, frame, box, score))
+            count += 1
+    atomic_write_text(Path(path), out.getvalue())
+    print(f"wrote {path} ({count} boxes)", file=sys.stderr)
