@@ -69,6 +69,40 @@ class PinholeGeometry:
     above_water: bool = True
 
 
+def pinhole_decomposition(H: np.ndarray, center) -> tuple[np.ndarray, ...]:
+    """The pinhole cameras behind (B, 3, 3) sea-plane homographies: ``CameraModel.pinhole`` for many at once.
+
+    Returns focal (B,), camera centre (B, 3) in world metres, skew (B,), aspect (B,), valid (B,); the label-free
+    search decomposes its hypotheses with it.
+    H = K [r1 r2 t] for a camera with square pixels and its principal point at ``center``: the focal length is the
+    one that makes r1 and r2 orthogonal and of equal length (least squares of the two conditions). ``valid`` is
+    False where no positive focal length fits; the other values there are meaningless.
+    """
+    cx, cy = center
+    a = H[:, 0, :] - cx * H[:, 2, :]
+    b = H[:, 1, :] - cy * H[:, 2, :]
+    c = H[:, 2, :]
+    p, q = a[:, 0] * a[:, 1] + b[:, 0] * b[:, 1], c[:, 0] * c[:, 1]
+    r = a[:, 0] ** 2 + b[:, 0] ** 2 - a[:, 1] ** 2 - b[:, 1] ** 2
+    s = c[:, 0] ** 2 - c[:, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = p * p + r * r
+        inv_f2 = np.where(denom > 0, -(p * q + r * s) / np.where(denom > 0, denom, 1.0), np.nan)
+        valid = np.isfinite(inv_f2) & (inv_f2 > 0)
+        f = 1.0 / np.sqrt(np.where(valid, inv_f2, 1.0))
+        M = np.stack([a / f[:, None], b / f[:, None], c], axis=1)
+        n1, n2 = np.linalg.norm(M[:, :, 0], axis=1), np.linalg.norm(M[:, :, 1], axis=1)
+        scale = -1.0 / np.sqrt(n1 * n2)  # z_p < 0 in front: the camera's z is -z_p
+        r1, r2, t = (M[:, :, k] * scale[:, None] for k in range(3))
+        skew = np.abs(np.sum(r1 * r2, axis=1)) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
+        aspect = n1 / n2
+    finite = valid & np.isfinite(r1).all(axis=1) & np.isfinite(r2).all(axis=1) & np.isfinite(t).all(axis=1)
+    rotation = np.where(finite[:, None, None], np.stack([r1, r2, np.cross(r1, r2)], axis=2), np.eye(3))
+    u, _, vt = np.linalg.svd(rotation)
+    centre = -np.einsum("bji,bj->bi", u @ vt, np.where(finite[:, None], t, 0.0))
+    return f, centre, skew, aspect, valid
+
+
 def _same_number(a: float, b: float) -> bool:
     return a == b or (math.isnan(a) and math.isnan(b))
 
@@ -540,31 +574,14 @@ class CameraModel:
         return self._pinhole
 
     def _decompose(self) -> PinholeGeometry:
-        cx, cy = self._center
-        H = self._H
-        a = H[0] - cx * H[2]
-        b = H[1] - cy * H[2]
-        c = H[2]
-        p, q = a[0] * a[1] + b[0] * b[1], c[0] * c[1]
-        r, s = a[0] ** 2 + b[0] ** 2 - a[1] ** 2 - b[1] ** 2, c[0] ** 2 - c[1] ** 2
-        denom = p * p + r * r
-        inv_f2 = -(p * q + r * s) / denom if denom > 0 else math.nan
-        if not (math.isfinite(inv_f2) and inv_f2 > 0):
+        focal, centre, skew, aspect, valid = pinhole_decomposition(self._H[None], self._center)
+        if not valid[0]:
             raise CalibrationError("H is not the view of a pinhole camera over the sea plane (no positive focal "
                                    "length makes its columns orthogonal): give the camera height (height_m) "
                                    "or re-run the calibration")
-        f = 1.0 / math.sqrt(inv_f2)
-        M = np.vstack([a / f, b / f, c])
-        n1, n2 = np.linalg.norm(M[:, 0]), np.linalg.norm(M[:, 1])
-        scale = -1.0 / math.sqrt(n1 * n2)  # z_p < 0 in front: the camera's z is -z_p
-        r1, r2, t = M[:, 0] * scale, M[:, 1] * scale, M[:, 2] * scale
-        u, _, vt = np.linalg.svd(np.column_stack([r1, r2, np.cross(r1, r2)]))
-        rotation = u @ vt
-        centre = -rotation.T @ t
-        return PinholeGeometry(focal_px=float(f), height_m=float(abs(centre[2])),
-                               nadir_xy=(float(centre[0]), float(centre[1])),
-                               skew=float(abs(r1 @ r2) / (np.linalg.norm(r1) * np.linalg.norm(r2))),
-                               aspect=float(n1 / n2), above_water=bool(centre[2] > 0))
+        return PinholeGeometry(focal_px=float(focal[0]), height_m=float(abs(centre[0, 2])),
+                               nadir_xy=(float(centre[0, 0]), float(centre[0, 1])), skew=float(skew[0]),
+                               aspect=float(aspect[0]), above_water=bool(centre[0, 2] > 0))
 
     def water_level_scale(self, level_m):
         """The scale k = h / (h - rise) for water ``rise`` = ``level_m`` - ``water_level_m`` higher than at calibration.

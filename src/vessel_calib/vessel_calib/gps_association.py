@@ -32,7 +32,7 @@ from vessel_calib.calibration import (
     _front_sign,
     calibrate,
 )
-from vessel_calib.camera_model import CameraModel, box_points
+from vessel_calib.camera_model import CameraModel, box_points, pinhole_decomposition
 from vessel_calib.errors import CalibrationError
 
 #: The consensus search scores cameras up to this many times ``max_nadir_m`` from the given position (a 4-point
@@ -342,39 +342,18 @@ def _consensus_search(world, anchors, scores, center, options: SearchOptions, ba
 def _physical(H: np.ndarray, center: np.ndarray, options: SearchOptions) -> tuple[np.ndarray, np.ndarray]:
     """Which homographies an upright pinhole camera above the sea could give, and how far from the origin it stands.
 
-    ``CameraModel.pinhole`` batched, with loose shape limits (a 4-point hypothesis is noisy): a (B,) mask and the
-    (B,) camera offsets in metres.
+    ``pinhole_decomposition`` with loose shape limits (a 4-point hypothesis is noisy): a (B,) mask and the (B,)
+    camera offsets in metres.
 
     A free homography explains one boat's track through many impossible cameras; scoring only possible ones keeps
     the search on cameras that exist.
     """
-    cx, cy = center
-    a = H[:, 0, :] - cx * H[:, 2, :]
-    b = H[:, 1, :] - cy * H[:, 2, :]
-    c = H[:, 2, :]
-    p, q = a[:, 0] * a[:, 1] + b[:, 0] * b[:, 1], c[:, 0] * c[:, 1]
-    r = a[:, 0] ** 2 + b[:, 0] ** 2 - a[:, 1] ** 2 - b[:, 1] ** 2
-    s = c[:, 0] ** 2 - c[:, 1] ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv_f2 = -(p * q + r * s) / (p * p + r * r)
-        ok = np.isfinite(inv_f2) & (inv_f2 > 0)
-        f = 1.0 / np.sqrt(np.where(ok, inv_f2, 1.0))
-        ok &= (f >= options.focal_range_px[0]) & (f <= options.focal_range_px[1])
-        M = np.stack([a / f[:, None], b / f[:, None], c], axis=1)
-        n1, n2 = np.linalg.norm(M[:, :, 0], axis=1), np.linalg.norm(M[:, :, 1], axis=1)
-        scale = -1.0 / np.sqrt(n1 * n2)
-        r1, r2, t = (M[:, :, k] * scale[:, None] for k in range(3))
-        aspect = n1 / n2
-        skew = np.abs(np.sum(r1 * r2, axis=1)) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
+    focal, centre, skew, aspect, ok = pinhole_decomposition(H, center)
+    with np.errstate(invalid="ignore"):
+        ok &= (focal >= options.focal_range_px[0]) & (focal <= options.focal_range_px[1])
         ok &= np.isfinite(aspect) & (aspect > 0.5) & (aspect < 2.0) & (skew < 0.3)
-    if not ok.any():
-        return ok, np.full(len(H), np.inf)
-    rotation = np.stack([r1, r2, np.cross(r1, r2)], axis=2)
-    rotation = np.where(ok[:, None, None], rotation, np.eye(3))
-    u, _, vt = np.linalg.svd(rotation)
-    centre = -np.einsum("bji,bj->bi", u @ vt, np.where(ok[:, None], t, 0.0))
-    ok &= (centre[:, 2] >= options.height_range_m[0]) & (centre[:, 2] <= options.height_range_m[1])
-    return ok, np.hypot(centre[:, 0], centre[:, 1])
+        ok &= (centre[:, 2] >= options.height_range_m[0]) & (centre[:, 2] <= options.height_range_m[1])
+    return ok, np.where(ok, np.hypot(centre[:, 0], centre[:, 1]), np.inf)
 
 
 def _distinct_draws(rng, population: np.ndarray, rows: int) -> np.ndarray:
