@@ -477,11 +477,7 @@ def run(args) -> int:
         if not np.all(np.isfinite(stamps)):
             raise CalibrationError("--water-level needs the time of every pair: give the pairs CSV a time column t "
                                    "(epoch seconds or ISO-8601 UTC)")
-        levels = water_level.level_at(stamps)
-        if not np.all(np.isfinite(levels)):
-            raise CalibrationError(f"{int(np.sum(~np.isfinite(levels)))} pair(s) fall outside the water-level file "
-                                   f"{water_level.source} ({_utc(water_level.start_s)} to {_utc(water_level.end_s)});"
-                                   " extend the file to cover them")
+        levels = _levels_at(water_level, stamps, "pair(s)")
         source += f", water level from {args.water_level}"
     if len(screen) < MIN_PAIRS_TO_WRITE:
         raise CalibrationError(
@@ -568,15 +564,18 @@ def _pairs_source(requested: str, ds) -> str:
     return "labels" if (ds.path / "screen_labels.csv").is_file() else "detections"
 
 
-def _levels_of(water_level, frames):
+def _levels_at(water_level, stamps, what: str):
+    """The water level at each of ``stamps`` (None without a water-level file).
+
+    CalibrationError naming how many ``what`` fall outside the file.
+    """
     import numpy as np
 
     if water_level is None:
         return None
-    stamps = np.array([f.stamp for f in frames], dtype=float)
-    levels = water_level.level_at(stamps)
+    levels = water_level.level_at(np.asarray(stamps, dtype=float))
     if not np.all(np.isfinite(levels)):
-        raise CalibrationError(f"{int(np.sum(~np.isfinite(levels)))} frame(s) fall outside the water-level file "
+        raise CalibrationError(f"{int(np.sum(~np.isfinite(levels)))} {what} fall outside the water-level file "
                                f"{water_level.source} ({_utc(water_level.start_s)} to {_utc(water_level.end_s)}); "
                                "extend the file to cover them")
     return levels
@@ -592,7 +591,7 @@ def _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center
     print(f"calibrate: {len(frames)} frames of videos {args.videos or DEFAULT_TRAIN_VIDEOS} with a GPS fix of the "
           f"vessel ({without_gps} without one, left out); searching for the camera", flush=True)
     return associate_and_calibrate(frames, camera_lat, camera_lon, image_size, center, _search_options(args),
-                                   _fit_options(args), _levels_of(water_level, frames))
+                                   _fit_options(args), _levels_at(water_level, [f.stamp for f in frames], "frame(s)"))
 
 
 def _search_video(args, camera_lat, camera_lon, center_text, water_level):
@@ -625,7 +624,8 @@ def _search_video(args, camera_lat, camera_lon, center_text, water_level):
           "searching for the camera", flush=True)
     center = _parse_center(center_text, image_size)
     association = associate_and_calibrate(frames, camera_lat, camera_lon, image_size, center, _search_options(args),
-                                          _fit_options(args), _levels_of(water_level, frames))
+                                          _fit_options(args),
+                                          _levels_at(water_level, [f.stamp for f in frames], "frame(s)"))
     return association, frame_file, image_size
 
 

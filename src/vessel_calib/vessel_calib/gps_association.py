@@ -287,13 +287,16 @@ def _nearest(predicted: np.ndarray, ok: np.ndarray, anchors: np.ndarray):
 
 # --------------------------------------------------------------------------- search
 def _consensus_search(world, anchors, scores, center, options: SearchOptions, batch: int = 2000):
-    """The best hypotheses (H, K1, cost, inliers) of the MSAC consensus search, best first."""
+    """The MSAC consensus search: its best hypotheses ``(H, K1, cost)``, best first, and how many it scored.
+
+    Also the best camera the offset check rejected: the frames it explains and its offset in metres.
+    """
     rng = np.random.default_rng(options.seed)
     counts = np.sum(np.isfinite(anchors[..., 0]), axis=1)
     usable = np.flatnonzero(counts > 0)
     weights = np.where(np.isfinite(anchors[..., 0]), np.nan_to_num(scores, nan=0.0), 0.0)
     gate2 = options.gates_px[0] ** 2
-    kept: list[tuple[float, int, np.ndarray, float]] = []
+    kept: list[tuple[np.ndarray, float, float]] = []
     scored = 0
     misplaced = [0, math.nan]  # the best camera the offset check rejected: frames it explains, its offset (m)
     for start in range(0, options.hypotheses, batch):
@@ -328,15 +331,9 @@ def _consensus_search(world, anchors, scores, center, options: SearchOptions, ba
         d2, _ = _nearest(predicted, ok, anchors)
         cost = np.sum(np.minimum(d2, gate2), axis=1)
         scored += int(good.sum())
-        for i in np.argsort(cost)[: options.candidates_refined]:
-            kept.append((float(cost[i]), len(kept), H[i], float(k1[i])))
-        kept = sorted(kept, key=lambda item: item[:2])[: options.candidates_refined * 4]
-    distinct: list[tuple[np.ndarray, float, float]] = []
-    for cost, _, H, k1 in kept:
-        if len(distinct) >= options.candidates_refined:
-            break
-        distinct.append((H, k1, cost))
-    return distinct, scored, misplaced
+        kept += [(H[i], float(k1[i]), float(cost[i])) for i in np.argsort(cost)[: options.candidates_refined]]
+        kept = sorted(kept, key=lambda item: item[2])[: options.candidates_refined]  # stable: ties keep the earlier
+    return kept, scored, misplaced
 
 
 def _physical(H: np.ndarray, center: np.ndarray, options: SearchOptions) -> tuple[np.ndarray, np.ndarray]:
@@ -511,19 +508,22 @@ def _refine_association(frames, world, levels, anchors, anchors_index, model, ca
 
     The rounds ignore the tide (cheap fits); the last association and fit allow for it when levels are given.
     """
-    common = (frames, anchors_index, camera_lat, camera_lon, image_size, center, fit_options, options.box_anchor)
+    def fit(slots, pair_levels):
+        return _fit(frames, slots, anchors_index, camera_lat, camera_lon, image_size, center, fit_options,
+                    options.box_anchor, pair_levels)
+
     for gate in options.gates_px:
         slots, _ = _associate(model, world, None, anchors, gate)
         if np.sum(slots >= 0) < 6:
             return None
-        model = _fit(*common[:1], slots, *common[1:], None)[0].model
+        model = fit(slots, None)[0].model
     if levels is not None:
         slots, _ = _associate(model, world, None, anchors, options.gates_px[-1])
-        model = _fit(*common[:1], slots, *common[1:], levels)[0].model
+        model = fit(slots, levels)[0].model
     slots, residual = _associate(model, world, levels, anchors, options.gates_px[-1])
     if np.sum(slots >= 0) < 6:
         return None
-    result, slots = _fit(*common[:1], slots, *common[1:], levels)
+    result, slots = fit(slots, levels)
     return result, slots, np.where(slots >= 0, residual, np.nan)
 
 

@@ -477,9 +477,10 @@ def run_node(
 
 def release_publisher(node, publisher) -> None:
     """Destroy a publisher the node made, as a lifecycle publisher when it is one (so no transition touches it)."""
-    destroy = getattr(node, "destroy_lifecycle_publisher", None)
-    if destroy is not None and type(publisher).__name__ == "LifecyclePublisher":
-        destroy(publisher)
+    from rclpy.lifecycle import LifecycleNode, LifecyclePublisher
+
+    if isinstance(node, LifecycleNode) and isinstance(publisher, LifecyclePublisher):
+        node.destroy_lifecycle_publisher(publisher)
     else:
         node.destroy_publisher(publisher)
 
