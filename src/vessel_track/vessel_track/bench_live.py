@@ -133,10 +133,7 @@ def run(args: argparse.Namespace) -> dict:
         next_sample = time.monotonic()
         while time.monotonic() < end:
             if time.monotonic() >= next_sample:
-                for name, pid in session.monitor.pids.items():
-                    sample = read_proc(pid)
-                    if sample is not None:
-                        samples.setdefault(name, []).append((time.monotonic() - started, sample.rss_kb / 1024.0))
+                _sample_rss(session.monitor.pids, time.monotonic() - started, samples)
                 next_sample += SAMPLE_EVERY_S
                 elapsed = time.monotonic() - started - args.warmup_s
                 log(f"{elapsed / 60:.1f} min: {watcher.log.count(IMAGE_TOPIC)} images, "
@@ -148,10 +145,7 @@ def run(args: argparse.Namespace) -> dict:
         measure_to_ns = time.time_ns()
         watcher.spin(3.0)  # the last frames' diagnostics and fixes
         counters_end = {key: _counter(watcher.diagnostics, node, key) for node, key in _COUNTERS}
-        for name, pid in session.monitor.pids.items():
-            sample = read_proc(pid)
-            if sample is not None:
-                samples.setdefault(name, []).append((time.monotonic() - started, sample.rss_kb / 1024.0))
+        _sample_rss(session.monitor.pids, time.monotonic() - started, samples)
         minute_ns = 60_000_000_000
         return _figures(args, folder, counters_start, counters_end, samples,
                         all_latencies=_latencies_s(watcher, measure_from_ns, measure_to_ns),
@@ -160,6 +154,14 @@ def run(args: argparse.Namespace) -> dict:
                         seconds=(measure_to_ns - measure_from_ns) / 1e9)
     finally:
         session.stop()
+
+
+def _sample_rss(pids: dict[str, int], elapsed_s: float, samples: dict[str, list[tuple[float, float]]]) -> None:
+    """Add each node's resident memory (MB) at ``elapsed_s`` to ``samples``."""
+    for name, pid in pids.items():
+        sample = read_proc(pid)
+        if sample is not None:
+            samples.setdefault(name, []).append((elapsed_s, sample.rss_kb / 1024.0))
 
 
 _COUNTERS = (("camera", "frames_sent"), ("detector", "frames_received"), ("detector", "frames_processed"),
