@@ -155,6 +155,29 @@ def _wait_until(predicate, timeout_s: float, poll_s: float = 0.05, spin=None) ->
     return bool(predicate())
 
 
+def ask_service(client, request, wait, timeout_s: float = 30.0, retry_s: float = 5.0):
+    """The response of a read-only service (state, parameters), asked again when an answer goes missing.
+
+    Under load the first response after a client matched a service can be lost: the service's response writer has
+    not matched the client's reader yet (rmw_fastrtps waits a little, then drops it). A request that changes
+    nothing may simply be sent again; never use this for one that does (a lifecycle transition).
+    ``wait(predicate, seconds)`` spins the caller's executor.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        future = client.call_async(request)
+        if wait(future.done, max(0.0, min(retry_s, deadline - time.monotonic()))):
+            return future.result()
+        client.remove_pending_request(future)
+    raise AssertionError(f"no answer from {client.srv_name} within {timeout_s:g} s")
+
+
+@pytest.fixture(name="ask_service")
+def ask_service_fixture():
+    """``ask_service(client, request, wait)``: a read-only service's response, asked again if it goes missing."""
+    return ask_service
+
+
 @pytest.fixture(name="interrupt")
 def interrupt_fixture():
     """``interrupt(process, timeout_s)``: SIGINT like Ctrl-C, wait, kill if it hangs; the exit status."""

@@ -70,19 +70,18 @@ def _python_value(value):
     return list(got) if value.type >= 5 else got
 
 
-def _all_parameters(executor, probe, node_name, wait_until, process):
+def _all_parameters(executor, probe, node_name, wait_until, ask_service, process):
     from rcl_interfaces.srv import GetParameters, ListParameters
 
     lister = probe.create_client(ListParameters, f"/{node_name}/list_parameters")
     getter = probe.create_client(GetParameters, f"/{node_name}/get_parameters")
     assert wait_until(lambda: (lister.service_is_ready() and getter.service_is_ready()) or process.poll() is not None,
                       60, spin=lambda: executor.spin_once(timeout_sec=0.1))
-    listed = lister.call_async(ListParameters.Request())
-    assert wait_until(listed.done, 30, spin=lambda: executor.spin_once(timeout_sec=0.1))
-    names = sorted(listed.result().result.names)
-    got = getter.call_async(GetParameters.Request(names=names))
-    assert wait_until(got.done, 30, spin=lambda: executor.spin_once(timeout_sec=0.1))
-    values = got.result().values
+    def wait(predicate, seconds):
+        return wait_until(predicate, seconds, spin=lambda: executor.spin_once(timeout_sec=0.1))
+
+    names = sorted(ask_service(lister, ListParameters.Request(), wait).result.names)
+    values = ask_service(getter, GetParameters.Request(names=names), wait).values
     # rclpy answers a request that names one unset parameter with nothing at all: `ros2 param dump` printed {}.
     assert len(values) == len(names), f"{node_name}: {len(values)} values for {len(names)} parameters"
     return {name: _python_value(value) for name, value in zip(names, values, strict=True)}
@@ -92,7 +91,7 @@ def _all_parameters(executor, probe, node_name, wait_until, process):
 @pytest.mark.parametrize("package, executable", [("vessel_track", "tracker"), ("vessel_track", "fuser"),
                                                  ("vessel_track", "gps_publisher")])
 def test_every_parameter_dumps_and_the_dump_reloads_the_same_node(package, executable, ros_env, ros_context,
-                                                                   start_node, wait_until, tmp_path):
+                                                                   start_node, wait_until, ask_service, tmp_path):
     """What `ros2 param dump` does (list, then get every name), and the dump back as the only parameter file."""
     import math
 
@@ -105,12 +104,12 @@ def test_every_parameter_dumps_and_the_dump_reloads_the_same_node(package, execu
     probe = rclpy.create_node("dump_probe", context=ros_context)
     executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
     executor.add_node(probe)
-    dumped = _all_parameters(executor, probe, executable, wait_until, first.process)
+    dumped = _all_parameters(executor, probe, executable, wait_until, ask_service, first.process)
     assert first.stop() == 0
     dump_file = tmp_path / "dump.yaml"
     dump_file.write_text(yaml.safe_dump({f"/{executable}": {"ros__parameters": dumped}}))
     again = start_node(package, executable, "--ros-args", "--params-file", str(dump_file))
-    reloaded = _all_parameters(executor, probe, executable, wait_until, again.process)
+    reloaded = _all_parameters(executor, probe, executable, wait_until, ask_service, again.process)
     probe.destroy_node()
 
     def same(a, b):

@@ -102,8 +102,9 @@ def _raw(encoding: str, height: int, width: int, step: int, data: bytes, sec: in
 
 
 @pytest.fixture
-def probe(ros_env):
+def probe(ros_env, ask_service):
     probe = Probe(int(ros_env["ROS_DOMAIN_ID"]))
+    probe.ask_service = ask_service
     yield probe
     probe.close()
 
@@ -227,14 +228,7 @@ def _change_state(probe, client, transition_id: int) -> bool:
 def _state(probe, client) -> str:
     from lifecycle_msgs.srv import GetState
 
-    # GetState changes nothing, so it may be asked again: under load the first response after a client matched the
-    # service can be lost (the service's response writer has not matched the client's reader yet).
-    for _ in range(6):
-        future = client.call_async(GetState.Request())
-        if probe.wait(future.done, 5.0):
-            return future.result().current_state.label
-        client.remove_pending_request(future)
-    raise AssertionError("no answer to get_state within 30 s")
+    return probe.ask_service(client, GetState.Request(), probe.wait).current_state.label
 
 
 def test_managed_detector_walks_the_whole_lifecycle(start_node, probe, data_dir, model_path, tmp_path):
