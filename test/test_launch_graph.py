@@ -1,7 +1,7 @@
 """``ros2 launch vessel_track vessel_graph.launch.py`` with the real ``ros2`` command line, launch and launch_ros.
 
-They are not on PyPI: this test runs where they are installed (a ROS 2 Jazzy install, or their jazzy sources
-built with colcon on top of the project's environment, then sourced) and skips elsewhere, saying so.
+They are not on PyPI: ``./vessel setup`` builds their jazzy sources (vendored in third_party/ros2) into the
+workspace, so this runs in CI. A workspace built without them (or without a ROS 2 install sourced) skips, saying so.
 """
 
 from __future__ import annotations

@@ -1,0 +1,25 @@
+# Copyright 2018 Open Source Robotics Foundation, Inc.
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Package for launch.events.process."""
+
+from .change_state import ChangeState
+from .lifecycle_node_matchers import matches_node_name
+from .state_transition import StateTransition
+
+__all__ = [
+    'ChangeState',
+    'matches_node_name',
+    'StateTransition',
+]
