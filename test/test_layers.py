@@ -24,7 +24,8 @@ LAYERS = ("common", "core", "ros", "nodes", "tools", "apps")
 ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_interfaces", "rosbags", "mcap")
 
 _BY_LAYER = {
-    "common": """vessel_calib vessel_calib.errors vessel_calib.paths vessel_calib.geodesy vessel_detect
+    "common": """vessel_calib vessel_calib.errors vessel_calib.paths vessel_calib.geodesy vessel_calib.state_file
+                 vessel_detect
                  vessel_detect.training vessel_track""",
     "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
@@ -48,7 +49,8 @@ _BY_LAYER = {
                 vessel_track.evaluation vessel_track.appearance vessel_track.distance_model_fit
                 vessel_track.error_model_fit vessel_track.simulation""",
     "apps": """vessel_detect.bench_detector vessel_detect.replay_check vessel_track.demo vessel_track.demo_report
-               vessel_track.bench vessel_track.bench_live vessel_track.graph""",
+               vessel_track.bench vessel_track.bench_live vessel_track.bench_restart
+               vessel_track.graph""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 

@@ -32,6 +32,7 @@ from rclpy.qos import (
 
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.errors import CalibrationError, DataError, VesselError
+from vessel_calib.state_file import STATE_PARAMETERS, StateFile
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
 """Best effort, keep last 5: images and other high-rate data where the newest sample matters most."""
@@ -397,6 +398,47 @@ class NodeHealth:
         array.header.stamp = self._node.get_clock().now().to_msg()
         array.status = [status]
         self._publisher.publish(array)
+
+
+class NodeState:
+    """A node's ``state_file``: resume the core at the first message, snapshot it every ``state_period_s``.
+
+    ``core`` has ``snapshot()`` and ``restore(state)``. Failures to write are counted (``state_not_saved``) and
+    never stop the node.
+    """
+
+    def __init__(self, node: Node, health: NodeHealth, kind: str, fingerprint: str):
+        values = {name: declare_parameter(node, name, default, description,
+                                          **({"float_range": bounds} if bounds else {}))
+                  for name, (default, description, bounds) in STATE_PARAMETERS.items()}
+        self._node = node
+        self._health = health
+        self.file = StateFile(values["state_file"], kind, fingerprint, values["state_period_s"],
+                              values["state_max_age_s"]) if values["state_file"] else None
+
+    def resume(self, stamp: float, core) -> None:
+        """At the first message after a start: restore ``core`` from the state file if it fits ``stamp``."""
+        if self.file is None or not self.file.pending:
+            return
+        state, what = self.file.resume(stamp)
+        if state is not None:
+            try:
+                core.restore(state)
+            except (KeyError, TypeError, ValueError, AttributeError) as error:
+                what = f"state file {self.file.path} does not fit this node ({error}): cold start"
+            else:
+                self._health.count("resumed_from_state_file")
+        self._node.get_logger().info(what)
+
+    def save(self, stamp: float, core) -> None:
+        """Snapshot ``core`` if ``state_period_s`` of message time has passed since the last one."""
+        if self.file is None or not self.file.due(stamp):
+            return
+        try:
+            self.file.save(stamp, core.snapshot())
+        except (OSError, VesselError) as error:
+            self._health.problem("state_not_saved", f"the state file could not be written ({error}); a restart "
+                                 "would start cold: check state_file's folder")
 
 
 def _ignore_late_sigint() -> None:

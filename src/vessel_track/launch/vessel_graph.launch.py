@@ -3,8 +3,9 @@
 Arguments: ``params_file`` (graph parameters), ``calib_file`` (calibration written by ``calibrate``),
 ``source`` (camera source: bag folder, .mcap, video, image folder or device:N), ``rate`` (replay rate, 0 = as
 fast as the graph consumes), ``use_sim_time`` (``auto``: true when the source is a recording, whose stamps are
-the graph's time, false for a live device), ``respawn`` (restart a node that dies), ``managed`` (the camera and
-the detector as lifecycle nodes, configured and activated by this launch: ``camera_managed``,
+the graph's time, false for a live device), ``respawn`` (restart a node that dies, half a second later, at most
+five times; the tracker and the fuser then keep a state file, so a restarted one carries on), ``managed`` (the
+camera and the detector as lifecycle nodes, configured and activated by this launch: ``camera_managed``,
 ``detector_managed``). The node list is
 ``vessel_track.graph.GRAPH_NODES``, the same one ``./vessel graph`` starts on a pip-only install.
 
@@ -13,6 +14,7 @@ The per-run values go on each node's command line as ``-p name:=value``: launch_
 ignored. A parameter file that does not exist stops the launch with one line instead of running on defaults.
 """
 
+import tempfile
 from pathlib import Path
 
 from launch import LaunchDescription
@@ -20,7 +22,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from vessel_track.graph import GRAPH_NODES, camera_command_line, sim_time_for_source
+from vessel_track.graph import GRAPH_NODES, MAX_RESTARTS, STATEFUL_NODES, camera_command_line, sim_time_for_source
 
 
 def _nodes(context):
@@ -33,14 +35,18 @@ def _nodes(context):
     use_sim_time = sim_time_for_source(values["source"]) if values["use_sim_time"] == "auto" else \
         values["use_sim_time"].lower() == "true"
     respawn = values["respawn"].lower() == "true"
+    state_dir = Path(tempfile.mkdtemp(prefix="vessel_graph_state_")) if respawn else None
     nodes = []
     for graph_node in GRAPH_NODES:
         ros_arguments = ["-p", f"use_sim_time:={'true' if use_sim_time else 'false'}"]
         if graph_node.name == "camera":
             ros_arguments += camera_command_line(values["source"], values["rate"])
+        if state_dir is not None and graph_node.name in STATEFUL_NODES:
+            ros_arguments += ["-p", f"state_file:={state_dir / (graph_node.name + '.state')}"]
         common = dict(package=graph_node.package, name=graph_node.name,
                       parameters=[values["params_file"], values["calib_file"]], ros_arguments=ros_arguments,
-                      respawn=respawn and graph_node.name != "camera", respawn_delay=1.0, output="screen",
+                      respawn=respawn and graph_node.name != "camera", respawn_delay=0.5,
+                      respawn_max_retries=MAX_RESTARTS, output="screen",
                       emulate_tty=True)
         if graph_node.name in ("camera", "detector") and values["managed"].lower() == "true":
             nodes += _managed(graph_node.executable + "_managed", common)
@@ -84,6 +90,7 @@ def generate_launch_description():
                               description="run the camera and the detector as lifecycle nodes that this launch "
                                           "configures and activates (lifecycle services under /camera, /detector)"),
         DeclareLaunchArgument("respawn", default_value="false",
-                              description="restart a node (all but the camera) one second after it dies"),
+                              description="restart a node (all but the camera) half a second after it dies, at most "
+                                          "five times; the tracker and fuser resume from a state file"),
         OpaqueFunction(function=_nodes),
     ])

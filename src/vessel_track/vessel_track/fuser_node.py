@@ -18,11 +18,13 @@ from rclpy.node import Node
 
 from vessel_calib.node_support import (
     NodeHealth,
+    NodeState,
     declare_camera_model,
     declare_parameter,
     reliable_qos,
     stamp_to_sec,
 )
+from vessel_calib.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
 from vessel_track.node_params import FUSER_TOPICS, declare_fuser_settings, main_with_checks
@@ -119,6 +121,7 @@ class FuserNode(Node):
         self.core = TrackFuser(self.camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection,
                                s.error_model, water_level=water_level, water_level_max_hold_s=s.water_level.max_hold_s)
         self.health = NodeHealth(self)
+        self.state = NodeState(self, self.health, "fuser", settings_fingerprint(self.camera, s))
         self._reported_counts: dict[str, int] = {}
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
@@ -139,6 +142,7 @@ class FuserNode(Node):
             return
         source = self.settings.fusion.screen_source
         screen = [screen_track_from_msg(track, stamp, source) for track in msg.tracks]
+        self.state.resume(stamp, self.core)
         world = self.core.update(stamp, screen)
         by_id = {id(w.screen): w for w in world}
         out = VesselTrackArray()
@@ -147,6 +151,7 @@ class FuserNode(Node):
             out.tracks.append(fill_world_fields(track_msg, by_id[id(screen_track)]))
         self.publisher.publish(out)
         self._report(out)
+        self.state.save(stamp, self.core)
 
     def _report(self, out: VesselTrackArray) -> None:
         self.health.count("frames")

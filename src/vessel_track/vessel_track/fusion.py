@@ -474,6 +474,17 @@ class TrackFuser:
         self.selector.reset()
         self.last_stamp = None
 
+    def snapshot(self) -> dict:
+        """The world filters and selection history ``restore`` needs to carry on in another process (picklable)."""
+        return {"filters": self.filters, "ended_filters": self._ended_filters, "shapes": self._shapes,
+                "selector": self.selector, "last_stamp": self.last_stamp}
+
+    def restore(self, snapshot: dict) -> None:
+        """Carry on from ``snapshot()`` of a fuser with the same settings (a node restarted after a crash)."""
+        restored = (dict(snapshot["filters"]), dict(snapshot["ended_filters"]), dict(snapshot["shapes"]),
+                    snapshot["selector"], snapshot["last_stamp"])
+        self.filters, self._ended_filters, self._shapes, self.selector, self.last_stamp = restored
+
     def update(self, stamp: float, tracks: list[ScreenTrack]) -> list[WorldTrack]:
         """Fuse one frame's tracks; raises DataError only for a non-finite stamp."""
         stamp = float(stamp)

@@ -173,6 +173,12 @@ class GraphRunner:
         old.restarts += 1
         return self.start(old.node, old.parameters, append_log=True)
 
+    def state_file(self, name: str) -> Path:
+        """Where a node keeps its ``state_file`` for this run (removed first: a new run starts cold)."""
+        path = self._overrides_dir() / f"{name}.state"
+        path.unlink(missing_ok=True)
+        return path
+
     def _overrides_dir(self) -> Path:
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -318,6 +324,9 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
             raise VesselError(f"the graph did not connect within {timeout_s:g} s; {where}")
 
 
+STATEFUL_NODES = ("tracker", "fuser")
+"""Nodes that keep a ``state_file`` under ``--respawn``, so that a restarted one carries on from its tracks."""
+
 MAX_RESTARTS = 5
 """A node restarted this many times is left down and the graph stops: it fails for a reason a restart cannot fix."""
 
@@ -371,7 +380,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "source (bag, video, folder), so messages, /diagnostics and a --record are all in its time")
     parser.add_argument("--respawn", action="store_true",
                         help="restart a node that dies (at once, then after 0.5 s doubling to 8 s, at most 5 "
-                        "times), as respawn:=true does for ros2 launch")
+                        "times), as respawn:=true does for ros2 launch; the tracker and the fuser keep a state "
+                        "file, so a restarted one carries on from its tracks")
+    parser.add_argument("--no-state-files", action="store_true",
+                        help="with --respawn: restart the tracker and the fuser cold, without a state file")
     parser.add_argument("--connect-timeout", type=float, default=60.0,
                         help="seconds to wait for every link of the graph to be matched before the camera starts "
                         "(frames sent earlier would be lost)")
@@ -402,7 +414,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name in reversed(wanted):  # consumers first, so nothing the camera sends is missed
             if name == "camera":
                 continue
-            runner.start(known[name], {"use_sim_time": sim_time})
+            overrides = {"use_sim_time": sim_time}
+            if args.respawn and not args.no_state_files and name in STATEFUL_NODES:
+                overrides["state_file"] = str(runner.state_file(name))
+            runner.start(known[name], overrides)
             print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
         if "camera" in wanted:
             if set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
@@ -421,7 +436,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 finally:
                     watcher.close()
                 print("[graph] the detector's output is matched by a tracker", file=sys.stderr)
-            overrides: dict[str, object] = {"use_sim_time": sim_time}
+            overrides = {"use_sim_time": sim_time}
             if args.source:
                 overrides["source"] = args.source
             if args.rate is not None:

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from vessel_calib.errors import CalibrationError, DataError
+from vessel_calib.state_file import STATE_PARAMETERS
 from vessel_track.fuser_settings import FUSION_ANCHOR_MOVED, FuserSettings, flatten
 
 _INF = 1.0e12
@@ -222,6 +223,8 @@ def render_fuser_yaml(settings: FuserSettings) -> str:
              "# `python -m vessel_track.error_model_fit fit`.",
              "fuser:", "  ros__parameters:"]
     for name, (default, description) in FUSER_TOPICS.items():
+        lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
+    for name, (default, description, _) in STATE_PARAMETERS.items():
         lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
     nested = settings.to_params()
     for block, values in nested.items():

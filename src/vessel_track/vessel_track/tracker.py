@@ -468,6 +468,18 @@ class MultiTargetTracker:
         self._last_stamp = None
         return ids
 
+    def snapshot(self) -> dict:
+        """The tracks and counters ``restore`` needs to carry on in another process (picklable; not a copy)."""
+        return {"tracks": self._tracks, "ended": self._ended, "next_id": self._next_id,
+                "last_stamp": self._last_stamp}
+
+    def restore(self, snapshot: dict) -> None:
+        """Carry on from ``snapshot()`` of a tracker with the same config (a node restarted after a crash)."""
+        tracks, ended = list(snapshot["tracks"]), dict(snapshot["ended"])
+        next_id, last_stamp = int(snapshot["next_id"]), snapshot["last_stamp"]
+        self._tracks, self._ended, self._last_stamp = tracks, ended, last_stamp
+        self._next_id = max(self._next_id, next_id)
+
     def history(self, track_id: str) -> TrackHistory:
         """History of a live track, or of one reported LOST by the latest update; KeyError otherwise."""
         track = next((t for t in self._tracks if t.track_id == track_id), None) or self._ended.get(track_id)

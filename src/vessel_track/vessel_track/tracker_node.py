@@ -24,12 +24,14 @@ from rclpy.node import Node
 from vessel_calib.errors import DataError, VesselError
 from vessel_calib.node_support import (
     NodeHealth,
+    NodeState,
     declare_parameter,
     reliable_qos,
     run_node,
     sec_to_stamp,
     stamp_to_sec,
 )
+from vessel_calib.state_file import settings_fingerprint
 from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
 from vessel_track.tracker import (
     ASSOCIATION_METHODS,
@@ -217,6 +219,8 @@ class TrackerNode(Node):
             "has it (the detector's target_class, e.g. vessel_of_interest); '' : the best accepted hypothesis.")
         self.tracker = MultiTargetTracker(config)
         self.health = NodeHealth(self)
+        self.state = NodeState(self, self.health, "tracker",
+                               settings_fingerprint(config, self.classes, self.confidence_class))
         self._reported = TrackerCounters()
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
@@ -234,6 +238,7 @@ class TrackerNode(Node):
             self.health.problem("zero_stamp", "a detection array has a zero header stamp: set the image stamp")
         boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
         dropped_before = self.tracker.counters.out_of_order_frames
+        self.state.resume(stamp, self.tracker)
         try:
             states = self.tracker.update(stamp, boxes, scores, labels)
         except VesselError as error:
@@ -247,6 +252,7 @@ class TrackerNode(Node):
         out.tracks = [track_to_msg(s, msg.header) for s in states]
         self.publisher.publish(out)
         self._report(len(boxes), states)
+        self.state.save(stamp, self.tracker)
 
     def _report(self, n_boxes: int, states: list[TrackState]) -> None:
         counters = self.tracker.counters

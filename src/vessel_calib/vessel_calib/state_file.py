@@ -1,0 +1,107 @@
+"""Crash-safe snapshots of a node's working state, so that a node restarted after a crash resumes where it stopped.
+
+A restarted tracker or fuser that starts cold has no tracks, no world filters and no target history: the graph
+publishes no fix until new tracks are confirmed and a target is chosen again, and then a worse one for a while.
+With a state file the node writes its core's state every ``period_s`` of message time (to a temporary file, then
+renamed over the old one, so a kill at any moment leaves the previous snapshot whole). At its first message after
+a start it reads the snapshot back, but only if it was written with the same settings (``fingerprint``) and its
+stamp is not after that message's and at most ``max_age_s`` before it. Anything else is a cold start, and
+``resume`` says why.
+
+The snapshot is a pickle: point ``state_file`` only at a file the node itself writes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vessel_calib.errors import DataError
+
+FORMAT = "vessel_state/1"
+
+STATE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
+    "state_file": ("", "Snapshot of the node's tracks, written every state_period_s of message time and read back "
+                   "at the first message after a start, so that a node restarted after a crash (respawn) carries "
+                   "on instead of starting cold; '': none. A snapshot written with other settings, or more than "
+                   "state_max_age_s before the first message, is not used.", None),
+    "state_period_s": (0.5, "Message time between two snapshots of state_file (0: every message), s.",
+                       (0.0, 3600.0)),
+    "state_max_age_s": (60.0, "A snapshot older than this at the first message after a start is not used, s.",
+                        (0.0, 1e9)),
+}
+"""The parameters of a node with a state file (tracker, fuser): name -> (default, description, float range)."""
+
+
+def settings_fingerprint(*settings: object) -> str:
+    """A short hash of the settings a snapshot is only valid for (a changed setting means a cold start)."""
+    try:
+        data = pickle.dumps(settings, protocol=4)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        data = repr(settings).encode()
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+@dataclass
+class StateFile:
+    """One node's snapshot file: ``resume`` once at the first message, then ``save`` whenever ``due``."""
+
+    path: Path
+    node: str
+    fingerprint: str
+    period_s: float = 0.5
+    max_age_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path).expanduser()
+        self.pending = True  # resume not tried yet
+        self._saved_stamp: float | None = None
+
+    def resume(self, stamp: float) -> tuple[object | None, str]:
+        """The saved state if it is valid for a message stamped ``stamp``, else None; and what happened, in words."""
+        self.pending = False
+        if not self.path.is_file():
+            return None, f"no state file {self.path}: cold start"
+        try:
+            with open(self.path, "rb") as stream:
+                saved = pickle.load(stream)
+        except Exception as error:  # any unreadable pickle (truncated, another version): a cold start
+            return None, f"state file {self.path} unreadable ({type(error).__name__}: {error}): cold start"
+        if not isinstance(saved, dict) or saved.get("format") != FORMAT or saved.get("node") != self.node:
+            return None, f"state file {self.path} is not a {self.node} snapshot ({FORMAT}): cold start"
+        if saved.get("fingerprint") != self.fingerprint:
+            return None, f"state file {self.path} was written with other settings: cold start"
+        age = stamp - float(saved["stamp"])
+        if not 0.0 <= age <= self.max_age_s:
+            return None, (f"state file {self.path} is {age:+.1f} s from the first message (resumed only within "
+                          f"0..{self.max_age_s:g} s, state_max_age_s): cold start")
+        self._saved_stamp = float(saved["stamp"])
+        return saved["state"], f"resumed from state file {self.path}, saved {age:.2f} s before the first message"
+
+    def due(self, stamp: float) -> bool:
+        """Whether a snapshot at ``stamp`` is due (``period_s`` of message time since the last one, or none yet)."""
+        return self._saved_stamp is None or not 0.0 <= stamp - self._saved_stamp < self.period_s
+
+    def save(self, stamp: float, state: object) -> None:
+        """Write the snapshot atomically; OSError when the disk refuses, DataError when the state cannot be pickled.
+
+        Either way the previous snapshot stays whole.
+        """
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        payload = {"format": FORMAT, "node": self.node, "fingerprint": self.fingerprint, "stamp": float(stamp),
+                   "state": state}
+        try:
+            with open(temporary, "wb") as stream:
+                try:
+                    pickle.dump(payload, stream, protocol=pickle.HIGHEST_PROTOCOL)
+                except (pickle.PicklingError, TypeError, AttributeError) as error:
+                    raise DataError(f"{self.node} state cannot be saved to {self.path}: {error}") from None
+            os.replace(temporary, self.path)
+        finally:
+            temporary.unlink(missing_ok=True)
+        self._saved_stamp = float(stamp)
