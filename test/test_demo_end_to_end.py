@@ -17,7 +17,7 @@ from vessel_calib import geodesy
 @pytest.mark.slow
 def test_short_demo_writes_sane_outputs(data_dir, model_path, ros_env, tmp_path):
     out = tmp_path / "demo"
-    command = [sys.executable, "-m", "vessel_track.demo", "--data", str(data_dir), "--videos", "13,14",
+    command = [sys.executable, "-m", "vessel_tools.demo", "--data", str(data_dir), "--videos", "13,14",
                "--max-frames", "6", "--out", str(out), "--bags", str(tmp_path / "bags")]
     result = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -69,7 +69,7 @@ def test_demo_replays_a_saved_detector_run_in_step_with_the_camera(data_dir, ros
     lines += [f"13,{f.frame},600,425,640,440,0.9,8" for f in frames[::2]]   # every other frame has a box
     saved.write_text("\n".join(lines) + "\n")
     out = tmp_path / "demo"
-    command = [sys.executable, "-m", "vessel_track.demo", "--data", str(data_dir), "--videos", "13",
+    command = [sys.executable, "-m", "vessel_tools.demo", "--data", str(data_dir), "--videos", "13",
                "--max-frames", "6", "--detections", str(saved), "--out", str(out), "--bags", str(tmp_path / "bags")]
     result = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -83,7 +83,7 @@ def test_demo_replays_a_saved_detector_run_in_step_with_the_camera(data_dir, ros
 
 
 def test_a_missing_saved_detections_file_is_a_clear_error(data_dir, tmp_path):
-    command = [sys.executable, "-m", "vessel_track.demo", "--data", str(data_dir), "--videos", "13",
+    command = [sys.executable, "-m", "vessel_tools.demo", "--data", str(data_dir), "--videos", "13",
                "--detections", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "demo"),
                "--bags", str(tmp_path / "bags")]
     result = subprocess.run(command, capture_output=True, text=True, timeout=600)
@@ -95,7 +95,7 @@ def test_a_missing_saved_detections_file_is_a_clear_error(data_dir, tmp_path):
 def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_dir, ros_env, tmp_path):
     """--detections labels: the self-paced replay starts once the graph after it is connected; every frame out."""
     out = tmp_path / "demo"
-    command = [sys.executable, "-m", "vessel_track.demo", "--data", str(data_dir), "--videos", "17",
+    command = [sys.executable, "-m", "vessel_tools.demo", "--data", str(data_dir), "--videos", "17",
                "--detections", "labels", "--out", str(out), "--bags", str(tmp_path / "bags")]
     result = subprocess.run(command, env=ros_env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -109,7 +109,7 @@ def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_di
 def test_a_recording_whose_recorder_died_is_recovered_and_kept(tmp_path):
     """The demo used to abort with no output at all when the recorder was killed with -9."""
     from vessel_detect import bag_io, synthetic
-    from vessel_track.demo import VideoRun, readable_recording
+    from vessel_tools.demo import VideoRun, readable_recording
 
     recording = tmp_path / "video_13"
     writer = bag_io.BagWriter(recording, atomic=False).open()

@@ -24,7 +24,7 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
                             "--out", str(bags)], env=ros_env, capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     recording = tmp_path / "recording"
-    run = subprocess.run([sys.executable, "-m", "vessel_track.graph", "--source", str(bags / "video_14"),
+    run = subprocess.run([sys.executable, "-m", "vessel_tools.graph", "--source", str(bags / "video_14"),
                           "--rate", "0", "--exit-at-end", "--record", str(recording), "--log-dir",
                           str(tmp_path / "logs")], env=ros_env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
@@ -43,7 +43,7 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
 @pytest.mark.data
 @pytest.mark.slow
 def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, ros_env, tmp_path):
-    """``--respawn``: kill -9 the tracker mid-run; the runner restarts it and the graph publishes again."""
+    """``--respawn``: the tracker killed mid-run is restarted, resumes from its state file, and fixes flow again."""
     import signal
     import time
 
@@ -54,7 +54,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
                             "--out", str(bags)], env=ros_env, capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     logs, recording = tmp_path / "logs", tmp_path / "recording"
-    graph = subprocess.Popen([sys.executable, "-m", "vessel_track.graph", "--source", str(bags / "video_15"),
+    graph = subprocess.Popen([sys.executable, "-m", "vessel_tools.graph", "--source", str(bags / "video_15"),
                               "--rate", "2", "--exit-at-end", "--respawn", "--record", str(recording), "--log-dir",
                               str(logs)], env=ros_env, stderr=subprocess.PIPE, text=True)
     try:
@@ -75,6 +75,8 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
             graph.send_signal(signal.SIGINT)
             graph.wait(timeout=30)
     assert "tracker exited with status -9: restarting it" in stderr, stderr[-2000:]
+    tracker_log = (logs / "tracker.log").read_text(errors="replace")
+    assert "resumed from state file" in tracker_log, tracker_log[-2000:]  # its tracks, not a cold start
     print(f"graph ended {time.monotonic() - killed_at:.1f} s after the kill")
     fixes = BagReader(recording).message_count("/vessel/tracks")
     images = BagReader(bags / "video_15").message_count("/camera/image_raw/compressed")
@@ -82,7 +84,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
 
 
 def test_restarts_back_off():
-    from vessel_track.graph import MAX_RESTARTS, restart_delay_s
+    from vessel_track.graph_nodes import MAX_RESTARTS, restart_delay_s
 
     assert [restart_delay_s(k) for k in range(6)] == [0.0, 0.5, 1.0, 2.0, 4.0, 8.0]
     assert restart_delay_s(20) == 8.0 and MAX_RESTARTS == 5

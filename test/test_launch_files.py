@@ -53,7 +53,7 @@ def _load_graph_launch(monkeypatch):
 
 def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(monkeypatch):
     """Stand-ins; test_launch_graph.py runs the real ros2 launch where it is installed."""
-    from vessel_track.graph import GRAPH_NODES
+    from vessel_track.graph_nodes import GRAPH_NODES
 
     module = _load_graph_launch(monkeypatch)
     entities = module.generate_launch_description().args[0]

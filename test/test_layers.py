@@ -2,13 +2,18 @@
 
 Layers, lowest first (a module may import its own layer and those below):
 
-- ``common``: errors, paths, geodesy, the packages' ``__init__``;
+- ``common``: errors, paths, state files, the command-line tail (package ``vessel_common``), geodesy, the
+  packages' ``__init__``;
 - ``core``: ROS-free runtime code: camera model, parameter files, detector and its decoding, tracker, fusion,
   selection, smoothing, the runtime halves of the distance and error models;
 - ``ros``: ROS plumbing shared by nodes and tools: node support, parameter declarations, bag I/O, image sources;
 - ``nodes``: the rclpy nodes;
 - ``tools``: offline tools: data-folder loaders, calibration fit, pipeline, evaluation, fitting, training, bags;
-- ``apps``: what runs the graph: demo, bench, graph runner, replay check.
+- ``apps``: what runs the graph: demo, benchmarks, graph runner, replay check, the ``vessel`` command line (package
+  ``vessel_tools``).
+
+The packages follow the same order (``PACKAGE_DEPENDS``): ``vessel_common`` imports none of the others and nothing
+imports ``vessel_tools``.
 
 Every import counts, inside functions too. A new module must be given a layer here.
 """
@@ -19,14 +24,14 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("vessel_calib", "vessel_detect", "vessel_track")
+PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "vessel_tools")
 LAYERS = ("common", "core", "ros", "nodes", "tools", "apps")
 ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_interfaces", "rosbags", "mcap")
 
 _BY_LAYER = {
-    "common": """vessel_calib vessel_calib.errors vessel_calib.paths vessel_calib.geodesy vessel_calib.state_file
-                 vessel_detect
-                 vessel_detect.training vessel_track""",
+    "common": """vessel_common vessel_common.errors vessel_common.paths vessel_common.state_file
+                 vessel_common.command_line vessel_calib vessel_calib.geodesy vessel_detect vessel_detect.training
+                 vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.appearance_model vessel_detect.detector
@@ -34,13 +39,13 @@ _BY_LAYER = {
                vessel_detect.recall vessel_track.tracker vessel_track.fusion vessel_track.selection
                vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings""",
-    "ros": """vessel_calib.node_support vessel_detect.bag_io vessel_detect.ros_messages vessel_detect.sources
-              vessel_track.node_params""",
+    "ros": """vessel_common.node_support vessel_calib.camera_parameters vessel_detect.bag_io
+              vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params vessel_track.graph_nodes""",
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
                 vessel_track.gps_publisher_node""",
     "tools": """vessel_calib.dataset vessel_calib.calibration vessel_calib.calibration_plot
-                vessel_calib.gps_association vessel_calib.calibrate_node vessel_detect.dataset_detection
+                vessel_calib.gps_association vessel_detect.dataset_detection
                 vessel_detect.detect_cli vessel_detect.frame_boxes vessel_detect.bag_build vessel_detect.synthetic
                 vessel_detect.onnx_synthetic vessel_detect.training.augment vessel_detect.training.labels
                 vessel_detect.training.loss vessel_detect.training.model vessel_detect.training.model_card
@@ -48,9 +53,9 @@ _BY_LAYER = {
                 vessel_detect.training.trainer vessel_track.offline_data vessel_track.pipeline
                 vessel_track.evaluation vessel_track.appearance vessel_track.distance_model_fit
                 vessel_track.error_model_fit vessel_track.simulation""",
-    "apps": """vessel_detect.bench_detector vessel_detect.replay_check vessel_track.demo vessel_track.demo_report
-               vessel_track.bench vessel_track.bench_live vessel_track.bench_restart
-               vessel_track.graph""",
+    "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
+               vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart vessel_tools.graph
+               vessel_tools.cli vessel_tools.calibrate""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 
@@ -148,3 +153,28 @@ def test_the_core_imports_no_ros():
 def test_the_checks_catch_a_cycle_and_an_upward_import():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+PACKAGE_DEPENDS = {"vessel_common": set(), "vessel_calib": {"vessel_common"},
+                   "vessel_detect": {"vessel_common", "vessel_calib"},
+                   "vessel_track": {"vessel_common", "vessel_calib", "vessel_detect"},
+                   "vessel_tools": {"vessel_common", "vessel_calib", "vessel_detect", "vessel_track"}}
+"""Which of the project's packages each one may import: plumbing at the bottom, the apps' package on top."""
+
+
+def test_packages_import_only_the_packages_below_them():
+    wrong = sorted(f"{module} imports {other}" for module, others in _graph().items() for other in others
+                   if other.split(".")[0] != module.split(".")[0]
+                   and other.split(".")[0] not in PACKAGE_DEPENDS[module.split(".")[0]])
+    assert not wrong, "\n".join(wrong)
+
+
+def test_each_package_declares_the_packages_it_imports():
+    import xml.etree.ElementTree as ElementTree
+
+    for package in PACKAGE_DEPENDS:
+        declared = {e.text for e in ElementTree.parse(REPO / "src" / package / "package.xml").getroot()
+                    if e.tag in ("depend", "exec_depend")}
+        used = {other.split(".")[0] for module, others in _graph().items() if module.split(".")[0] == package
+                for other in others} - {package}
+        assert used <= declared, f"{package}/package.xml lacks {sorted(used - declared)}"

@@ -1,4 +1,4 @@
-"""Install vessel_calib: the core library and the offline `calibrate` node."""
+"""Install vessel_calib: geodesy, the camera model, the calibration fit and the parameter files."""
 from glob import glob
 
 from setuptools import find_packages, setup
@@ -20,9 +20,4 @@ setup(
     maintainer_email="maintainers@vessel-tracking.invalid",
     description="GPS-only camera calibration for monocular vessel tracking.",
     license="Apache-2.0",
-    entry_points={
-        "console_scripts": [
-            "calibrate = vessel_calib.calibrate_node:main",
-        ],
-    },
 )

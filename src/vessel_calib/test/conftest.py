@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from vessel_calib.dataset import Dataset
-from vessel_calib.paths import default_data_dir
+from vessel_common.paths import default_data_dir
 
 
 @pytest.fixture(scope="session")

@@ -13,7 +13,7 @@ from vessel_calib.calibration import (
     study_draws,
 )
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import CalibrationError
+from vessel_common.errors import CalibrationError
 
 
 def grid_error_m(fitted: CameraModel, truth: CameraModel) -> np.ndarray:

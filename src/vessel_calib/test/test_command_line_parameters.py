@@ -11,7 +11,7 @@ import subprocess
 
 import pytest
 
-from vessel_calib.node_support import command_line_parameters
+from vessel_common.node_support import command_line_parameters
 
 REPO = __import__("pathlib").Path(__file__).resolve().parents[3]
 GRAPH_FILE = REPO / "config" / "aitas.yaml"

@@ -4,8 +4,8 @@ import shutil
 import pytest
 
 from vessel_calib.dataset import Dataset
-from vessel_calib.errors import DataError
-from vessel_calib.paths import default_data_dir, parse_videos, repo_root
+from vessel_common.errors import DataError
+from vessel_common.paths import default_data_dir, parse_videos, repo_root
 
 
 def test_parse_videos():

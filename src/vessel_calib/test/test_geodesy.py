@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vessel_calib import geodesy
-from vessel_calib.errors import CalibrationError, DataError
+from vessel_common.errors import CalibrationError, DataError
 
 LAT0, LON0 = 32.70297, -117.234631
 

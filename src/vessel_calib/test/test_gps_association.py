@@ -10,8 +10,8 @@ import pytest
 from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
 
 from vessel_calib import geodesy
-from vessel_calib.errors import CalibrationError
 from vessel_calib.gps_association import FrameBoxes, SearchOptions, associate_and_calibrate
+from vessel_common.errors import CalibrationError
 
 FAST = SearchOptions(hypotheses=20000, candidates_refined=4)
 
@@ -89,7 +89,7 @@ def test_search_options_are_checked():
 
 # --------------------------------------------------------------------------- the calibrate command without labels
 def _cli(args, capsys):
-    from vessel_calib import calibrate_node
+    from vessel_tools import calibrate as calibrate_node
 
     status = calibrate_node.main([str(a) for a in args])
     out, err = capsys.readouterr()

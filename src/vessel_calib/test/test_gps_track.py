@@ -3,8 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
 from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
+from vessel_common.errors import DataError
 
 T0 = 1601494588.0  # 2020-09-30T19:36:28Z
 

@@ -5,7 +5,6 @@ import yaml
 from calib_synthetic import CAMERA_LAT, CAMERA_LON
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import CalibrationError
 from vessel_calib.params import (
     atomic_write_text,
     load_camera_params,
@@ -15,6 +14,7 @@ from vessel_calib.params import (
     write_camera_yaml,
     write_params_yaml,
 )
+from vessel_common.errors import CalibrationError
 
 PAPER_H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]
 

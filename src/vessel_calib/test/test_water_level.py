@@ -8,8 +8,8 @@ from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_h
 from vessel_calib import geodesy
 from vessel_calib.calibration import calibrate, evaluate
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import CalibrationError, DataError
 from vessel_calib.water_level import WaterLevelTable, load_water_level
+from vessel_common.errors import CalibrationError, DataError
 
 T0 = 1601494200.0  # 2020-09-30 19:30:00 UTC
 

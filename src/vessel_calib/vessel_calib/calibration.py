@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 
 from vessel_calib import geodesy
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel
-from vessel_calib.errors import CalibrationError
+from vessel_common.errors import CalibrationError
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 #: A pair further than this from the camera is a wrong camera position or swapped lat/lon, not a vessel in view.

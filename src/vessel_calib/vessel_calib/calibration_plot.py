@@ -17,7 +17,7 @@ import numpy as np
 from vessel_calib import geodesy
 from vessel_calib.calibration import CalibrationResult
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import CalibrationError
+from vessel_common.errors import CalibrationError
 
 
 def _polyline(model: CameraModel, xw: np.ndarray, yw: np.ndarray):

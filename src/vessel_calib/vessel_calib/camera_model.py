@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.errors import CalibrationError
+from vessel_common.errors import CalibrationError
 
 #: Condition number above which H is treated as singular.
 MAX_H_CONDITION = 1e12

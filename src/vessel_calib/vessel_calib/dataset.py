@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel, box_points
-from vessel_calib.errors import CalibrationError, DataError
 from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
-from vessel_calib.paths import parse_videos
+from vessel_common.errors import CalibrationError, DataError
+from vessel_common.paths import parse_videos
 
 DEFAULT_CALIBRATION = "paper_corrected_H00_negative"
 TRAIN_VIDEOS = (7, 8, 9, 10, 11, 12)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vessel_calib.errors import CalibrationError, VesselError
+from vessel_common.errors import CalibrationError, VesselError
 
 EARTH_RADIUS_M = 6371000.0
 

@@ -33,7 +33,7 @@ from vessel_calib.calibration import (
     calibrate,
 )
 from vessel_calib.camera_model import CameraModel, box_points, pinhole_decomposition
-from vessel_calib.errors import CalibrationError
+from vessel_common.errors import CalibrationError
 
 #: The consensus search scores cameras up to this many times ``max_nadir_m`` from the given position (a 4-point
 #: hypothesis is noisy); the final camera must be within ``max_nadir_m``.

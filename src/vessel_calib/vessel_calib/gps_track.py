@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 _LAT_NAMES = ("lat", "latitude")
 _LON_NAMES = ("lon", "lng", "long", "longitude")

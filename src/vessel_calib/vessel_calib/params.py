@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import CalibrationError
+from vessel_common.errors import CalibrationError
 
 ALL_NODES = "/**"
 

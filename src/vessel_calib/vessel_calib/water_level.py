@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError
-from vessel_calib.paths import in_repo
+from vessel_common.errors import DataError
+from vessel_common.paths import in_repo
 
 TIME_COLUMNS_UNIX = ("utc_s", "unix_s")
 TIME_COLUMNS_ISO = ("utc", "date time", "time")

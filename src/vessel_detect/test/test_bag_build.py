@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect import bag_build, bag_io, synthetic
 
 
@@ -180,7 +180,7 @@ def test_write_bag_rejects_bad_camera_position(tmp_path):
 @pytest.mark.data
 def test_shared_dataset_video_round_trip(tmp_path, capsys):
     from vessel_calib.dataset import Dataset
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     data_dir = default_data_dir()
     if data_dir is None:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect import bag_io, synthetic
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vessel_calib.errors import ModelError
+from vessel_common.errors import ModelError
 from vessel_detect.decoders import (
     OutputLayout,
     decode,

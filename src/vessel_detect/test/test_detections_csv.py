@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 
 

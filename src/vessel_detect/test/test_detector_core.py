@@ -7,7 +7,7 @@ and tiles, masks, and the real YOLOX-Nano on a real challenge frame.
 import numpy as np
 import pytest
 
-from vessel_calib.errors import ModelError, VesselError
+from vessel_common.errors import ModelError, VesselError
 from vessel_detect.decoders import grid_point_count
 from vessel_detect.detector import (
     Detections,

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect.image_codec import (
     ImageError,
     bgr_to_image_fields,

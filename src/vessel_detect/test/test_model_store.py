@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from vessel_calib.errors import ModelError
+from vessel_common.errors import ModelError
 from vessel_detect import model_store
 from vessel_detect.model_store import ModelSpec, resolve_model
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect import bag_io, sources, synthetic
 from vessel_detect.sources import AuxMessage, Frame
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect.training.augment import AugmentSettings, random_sample
 from vessel_detect.training.labels import (
     OTHER_CLASS,
@@ -176,7 +176,7 @@ def test_the_converted_graph_takes_any_input_size_and_new_classes(tiny_onnx):
 
 
 def test_a_graph_without_yolox_heads_is_refused(tmp_path):
-    from vessel_calib.errors import ModelError
+    from vessel_common.errors import ModelError
     from vessel_detect.training.model import TrainableYolox
 
     path = tmp_path / "plain.onnx"

@@ -4,7 +4,7 @@ A COCO detector finds every boat with similar scores (the vessel of interest is 
 validation frames); what tells it from ferries, moored sailboats and jet skis here is how it looks (colour), how
 large its box is for where it sits in the image (a small motor boat's box at the depth its position gives, through
 the calibration and the box-size distance model), and what is around it (a wake). The model is fitted offline
-(``python -m vessel_track.appearance fit``) with the paper's trick, no hand labelling: boxes of the vessel
+(``./vessel appearance fit``) with the paper's trick, no hand labelling: boxes of the vessel
 generated from its GPS through the calibration on the training videos are the positives, the other detections
 the negatives. The detector node applies it (parameter ``appearance_model``): the probability replaces the score
 (``appearance_combine``), boxes below ``appearance_min_probability`` dropped.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError, ModelError
+from vessel_common.errors import DataError, ModelError
 from vessel_detect.box_ops import suppress_nested
 
 #: Colour features of a crop (``crop_features``); FEATURE_SIZE is kept for the first, colour-only models.
@@ -241,7 +241,7 @@ class AppearanceModel:
         """Read an .npz written by ``save``; ModelError naming the file if it is missing or malformed."""
         path = Path(path)
         if not path.is_file():
-            raise ModelError(f"{path}: no such appearance model; write one with `python -m vessel_track.appearance "
+            raise ModelError(f"{path}: no such appearance model; write one with `./vessel appearance "
                              f"fit ...`")
         try:
             with np.load(path, allow_pickle=False) as data:
@@ -250,10 +250,10 @@ class AppearanceModel:
                 return cls(data["mean"], data["scale"], data["weights"], float(data["bias"]), str(data["source"]),
                            feature_set, size_model)
         except (OSError, KeyError, ValueError) as error:
-            raise ModelError(f"{path}: not an appearance model ({error}); re-run `python -m vessel_track.appearance "
+            raise ModelError(f"{path}: not an appearance model ({error}); re-run `./vessel appearance "
                              f"fit`") from None
         except ModelError as error:
-            raise ModelError(f"{path}: {error}; re-run `python -m vessel_track.appearance fit`") from None
+            raise ModelError(f"{path}: {error}; re-run `./vessel appearance fit`") from None
 
 
 def score_with_cue(model: AppearanceModel, bgr: np.ndarray, boxes_xyxy, scores,

@@ -24,9 +24,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vessel_calib.dataset import Dataset
-from vessel_calib.errors import DataError, VesselError
 from vessel_calib.gps_track import GpsTrack
-from vessel_calib.paths import default_data_dir, parse_videos, repo_root
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import default_data_dir, parse_videos, repo_root
 from vessel_detect import bag_io
 from vessel_detect.sources import VideoSource, jpeg_problem, parse_utc
 
@@ -557,16 +558,10 @@ def run(argv: list[str] | None = None) -> int:
     return 0
 
 
+@command_line_tool(interrupted='interrupted: no partial bag was left behind')
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: exit 0 on success, 2 with one `error:` line on bad input."""
-    try:
-        return run(argv)
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted: no partial bag was left behind", file=sys.stderr)
-        return 130
+    return run(argv)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 DEFAULT_IMAGE_TOPIC = "/camera/image_raw/compressed"
 DEFAULT_CAMERA_FIX_TOPIC = "/camera/fix"

@@ -25,9 +25,9 @@ from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CompressedImage, Image, NavSatFix, NavSatStatus
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.node_support import (
-    DEFAULT_CAMERA_PARAMETERS,
+from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
+from vessel_common.errors import DataError, VesselError
+from vessel_common.node_support import (
     LATCHED_QOS,
     NodeHealth,
     PhasedLifecycle,

@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 
 from vessel_calib.dataset import Dataset
-from vessel_calib.errors import DataError, VesselError
 from vessel_calib.params import load_camera_yaml
-from vessel_calib.paths import default_data_dir, parse_videos
+from vessel_common.errors import DataError, VesselError
+from vessel_common.paths import default_data_dir, parse_videos
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row
 from vessel_detect.detector import Detections, VesselDetector
 

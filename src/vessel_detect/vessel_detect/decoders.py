@@ -21,7 +21,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from vessel_calib.errors import ModelError
+from vessel_common.errors import ModelError
 
 DEFAULT_STRIDES: tuple[int, ...] = (8, 16, 32)
 

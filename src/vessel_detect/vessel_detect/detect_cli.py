@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.paths import repo_file
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import repo_file
 from vessel_detect.dataset_detection import (
     camera_for,
     detect_frames,
@@ -294,7 +295,7 @@ def _fit_on_labels(dataset, camera, videos):
 # ---------------------------------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
-    parser = argparse.ArgumentParser(prog="vessel detect", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="./vessel detect", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="detections of every frame of a dataset folder to CSV")
@@ -308,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="calibration parameter YAML (default: the shipped config/aitas_camera.yaml; '' for the "
                           "params file's camera block, else the dataset's camera.json)")
     run.add_argument("--no-cue", action="store_true", help="leave out the params file's appearance_model (the raw "
-                     "detector output a cue is fitted on: `python -m vessel_track.appearance fit`)")
+                     "detector output a cue is fitted on: `./vessel appearance fit`)")
     run.add_argument("--quiet", action="store_true", help="no progress line")
     run.set_defaults(func=cmd_run)
 
@@ -351,17 +352,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
     """Entry point: exit status 0, or 2 with one ``error:`` line for bad input."""
     args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args))
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return int(args.func(args))
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 CSV_COLUMNS = ("video", "frame", "x1", "y1", "x2", "y2", "score", "class_id", "p_target")
 #: COCO's "boat", the class written when a tool does not know it.

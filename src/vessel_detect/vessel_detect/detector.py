@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vessel_calib.errors import ModelError, VesselError
+from vessel_common.errors import ModelError, VesselError
 from vessel_detect.appearance_model import rescore_detections
 from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
 from vessel_detect.image_codec import ImageError

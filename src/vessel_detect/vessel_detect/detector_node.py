@@ -30,12 +30,12 @@ from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
 
-from vessel_calib.errors import VesselError
-from vessel_calib.node_support import (
+from vessel_calib.camera_parameters import declare_camera_model
+from vessel_common.errors import VesselError
+from vessel_common.node_support import (
     SENSOR_DATA_QOS,
     NodeHealth,
     PhasedLifecycle,
-    declare_camera_model,
     declare_parameter,
     image_qos_profile,
     main_for,

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError
 from vessel_calib.gps_association import FrameBoxes
 from vessel_calib.gps_track import GpsTrack
 from vessel_calib.params import atomic_write_text
-from vessel_calib.paths import repo_file
+from vessel_common.errors import DataError
+from vessel_common.paths import repo_file
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import detector_config, load_params_file, open_model

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 # encoding -> (channels, OpenCV conversion to BGR or None)
 _ENCODINGS: dict[str, tuple[int, int | None]] = {

@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from vessel_calib.errors import VesselError
+from vessel_common.errors import VesselError
 
 # The challenge camera (AI Tracks at Sea, 1280x720): the top of the mooring post at the bottom centre,
 # traced on the frames of videos 6-17 (it does not move), with a few pixels to spare.

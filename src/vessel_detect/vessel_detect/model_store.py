@@ -26,8 +26,8 @@ import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
-from vessel_calib.errors import ModelError
-from vessel_calib.paths import in_repo
+from vessel_common.errors import ModelError
+from vessel_common.paths import in_repo
 
 DEFAULT_MODEL_FILENAME = "yolox_nano.onnx"
 DEFAULT_MODEL_SHA256 = "695e750a5d5754bb5a8d5325643b59282191a7e7a564e435a415fd3c578eab14"
@@ -99,7 +99,7 @@ def sha256_of(path: Path) -> str:
 def repo_root() -> Path:
     """The project's repository root (the folder holding ``src/vessel_detect``), or this file's best guess."""
     try:
-        from vessel_calib.paths import repo_root as dataset_repo_root
+        from vessel_common.paths import repo_root as dataset_repo_root
 
         return Path(dataset_repo_root())
     except (ImportError, AttributeError):

@@ -25,8 +25,8 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.node_support import NodeHealth, declare_parameter, main_for, steady_timer
+from vessel_common.errors import DataError, VesselError
+from vessel_common.node_support import NodeHealth, declare_parameter, main_for, steady_timer
 from vessel_detect import bag_io
 from vessel_detect.ros_messages import message_class
 

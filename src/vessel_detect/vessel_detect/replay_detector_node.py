@@ -25,8 +25,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Header
 
-from vessel_calib.errors import DataError
-from vessel_calib.node_support import (
+from vessel_common.errors import DataError
+from vessel_common.node_support import (
     NodeHealth,
     declare_parameter,
     image_qos_profile,

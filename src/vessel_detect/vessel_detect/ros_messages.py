@@ -6,7 +6,7 @@ import importlib
 
 from builtin_interfaces.msg import Time
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect.bag_io import normalise_msgtype
 
 NS_PER_S = 1_000_000_000

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect import bag_io
 
 ProblemHandler = Callable[[str, str], None]

@@ -7,7 +7,7 @@ the graph's time, false for a live device), ``respawn`` (restart a node that die
 five times; the tracker and the fuser then keep a state file, so a restarted one carries on), ``managed`` (the
 camera and the detector as lifecycle nodes, configured and activated by this launch: ``camera_managed``,
 ``detector_managed``). The node list is
-``vessel_track.graph.GRAPH_NODES``, the same one ``./vessel graph`` starts on a pip-only install.
+``vessel_track.graph_nodes.GRAPH_NODES``, the same one ``./vessel graph`` starts on a pip-only install.
 
 The per-run values go on each node's command line as ``-p name:=value``: launch_ros would write them into a
 ``/**`` block, which the node's own block of ``params_file`` beats, so ``source:=`` and ``rate:=`` would be
@@ -22,7 +22,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from vessel_track.graph import GRAPH_NODES, MAX_RESTARTS, STATEFUL_NODES, camera_command_line, sim_time_for_source
+from vessel_track.graph_nodes import GRAPH_NODES, MAX_RESTARTS, STATEFUL_NODES, camera_command_line, sim_time_for_source
 
 
 def _nodes(context):
@@ -80,7 +80,7 @@ def _managed(executable: str, common: dict) -> list:
 def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument("params_file", description="graph parameter file, e.g. config/aitas.yaml"),
-        DeclareLaunchArgument("calib_file", description="calibration file written by vessel_calib calibrate"),
+        DeclareLaunchArgument("calib_file", description="calibration file written by vessel_tools calibrate"),
         DeclareLaunchArgument("source", default_value="", description="camera source (bag, video, folder, device:N)"),
         DeclareLaunchArgument("rate", default_value="1.0", description="replay rate; 0 = as fast as consumed"),
         DeclareLaunchArgument("use_sim_time", default_value="auto",

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError, ModelError
+from vessel_common.errors import DataError, ModelError
 from vessel_detect import appearance_model as am
 from vessel_track import appearance as ap
 from vessel_track.offline_data import DetectionFrame
@@ -143,7 +143,7 @@ def test_shipped_cue_ranks_the_vessel_first_among_the_detectors_boxes(data_dir, 
 
     from vessel_calib.dataset import Dataset
     from vessel_calib.params import load_camera_yaml
-    from vessel_calib.paths import repo_root
+    from vessel_common.paths import repo_root
     from vessel_detect.detector_params import build_detector, load_params_files
 
     config = repo_root() / "config"

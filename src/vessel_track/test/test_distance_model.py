@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.distance_model import (
     BoxSizeDistanceModel,
     box_cut_by_border,

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import yaml
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.error_model import PAPER_SLOPE, ErrorModel
 from vessel_track.error_model_fit import fit_error_model, main
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vessel_calib import geodesy
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.evaluation import (
     FIX_COLUMNS,
     covariance_consistency,
@@ -196,7 +196,7 @@ def test_rows_that_cannot_be_scored_are_skipped_and_counted_by_reason(tmp_path):
 @pytest.mark.data
 def test_gps_itself_scores_zero_on_the_shared_data(tmp_path):
     from vessel_calib.dataset import Dataset
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     root = default_data_dir()
     if root is None:

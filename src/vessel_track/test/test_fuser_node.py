@@ -69,7 +69,7 @@ def stop(processes):
 
 def screen_tracks(camera, stamp, k, stamp_msg):
     """One image's tracks as the tracker would publish them: a vessel crossing ~180 m out, a sailboat, a bad one."""
-    from vessel_calib.node_support import sec_to_stamp
+    from vessel_common.node_support import sec_to_stamp
     from vessel_msgs.msg import VesselTrack, VesselTrackArray
     from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
 
@@ -106,7 +106,7 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
-    from vessel_calib.node_support import matched_subscribers, reliable_qos, sec_to_stamp, stamp_to_sec
+    from vessel_common.node_support import matched_subscribers, reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import VesselTrackArray
     from vessel_track.simulation import challenge_camera
 
@@ -258,7 +258,7 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
     from vessel_calib import geodesy
-    from vessel_calib.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
+    from vessel_common.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
     spec = importlib.util.spec_from_file_location("pipeline_tests", Path(__file__).with_name("test_pipeline.py"))

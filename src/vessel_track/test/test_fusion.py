@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
+from vessel_common.state_file import StateFile, settings_fingerprint
 from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
 from vessel_track.fuser_settings import FuserSettings
 from vessel_track.fusion import (
@@ -20,8 +21,10 @@ from vessel_track.fusion import (
     fuse_boxes,
     gls_weights,
 )
+from vessel_track.pipeline import screen_track_of
 from vessel_track.selection import SelectionConfig
-from vessel_track.simulation import challenge_camera
+from vessel_track.simulation import challenge_camera, harbour_scenario
+from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
 MODEL = BoxSizeDistanceModel(a=3000.0, b=5.0, c=1500.0, d=2.0)
 
@@ -334,3 +337,38 @@ def test_a_box_of_only_the_cabin_is_trusted_less():
     for bad in (1.0, -0.1, float("nan")):
         with pytest.raises(DataError, match="height_drop_ratio"):
             FusionConfig(height_drop_ratio=bad)
+
+
+def _run_tracker_and_fuser(frames, tracker, fuser):
+    out = []
+    for frame in frames:
+        states = tracker.update(frame.stamp, frame.boxes_xyxy, frame.scores)
+        world = fuser.update(frame.stamp, [screen_track_of(s) for s in states])
+        out.append([(w.screen.track_id, w.screen.status, bool(w.is_target), tuple(np.round(w.position, 9)))
+                    for w in world])
+    return out
+
+
+def test_a_tracker_and_fuser_restored_from_their_files_carry_on_as_if_never_stopped(tmp_path):
+    frames = harbour_scenario(seed=3).run().frames
+    camera, model, config = challenge_camera(), BoxSizeDistanceModel(), TrackerConfig()
+    straight = _run_tracker_and_fuser(frames, MultiTargetTracker(config), TrackFuser(camera, model))
+    assert any(is_target for frame in straight for _, _, is_target, _ in frame)
+
+    tracker, fuser = MultiTargetTracker(config), TrackFuser(camera, model)
+    half = len(frames) // 2
+    before = _run_tracker_and_fuser(frames[:half], tracker, fuser)
+    files = {name: StateFile(tmp_path / f"{name}.state", name, settings_fingerprint(config), period_s=0.0)
+             for name in ("tracker", "fuser")}
+    files["tracker"].save(frames[half - 1].stamp, tracker.snapshot())
+    files["fuser"].save(frames[half - 1].stamp, fuser.snapshot())
+    del tracker, fuser  # the process dies
+
+    tracker, fuser = MultiTargetTracker(config), TrackFuser(camera, model)
+    for name, core in (("tracker", tracker), ("fuser", fuser)):
+        reader = StateFile(tmp_path / f"{name}.state", name, settings_fingerprint(config))
+        state, why = reader.resume(frames[half].stamp)
+        assert state is not None and why.startswith("resumed"), why
+        core.restore(state)
+    after = _run_tracker_and_fuser(frames[half:], tracker, fuser)
+    assert before + after == straight

@@ -87,7 +87,7 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
 
 
 def _data_or_skip():
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     root = default_data_dir()
     if root is None or not (root / "screen_labels.csv").is_file():
@@ -205,7 +205,7 @@ def test_the_demo_turns_the_tide_off_for_a_calibration_made_without_it(tmp_path)
 
     from vessel_calib.camera_model import CameraModel
     from vessel_calib.params import write_camera_yaml
-    from vessel_track.demo import tide_overrides
+    from vessel_tools.demo import tide_overrides
     from vessel_track.simulation import challenge_camera
 
     root = Path(__file__).resolve().parents[3]

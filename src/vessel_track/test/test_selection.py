@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.selection import (
     OnlineTargetSelector,
     SelectionConfig,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vessel_calib import geodesy
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.simulation import (
     MOORING_POST_XYXY,
     ArcPath,
@@ -159,7 +159,7 @@ def test_tracker_metrics_on_the_harbour_scenario(frame_interval_s, seed):
 @pytest.mark.data
 def test_box_size_model_fits_the_hand_labels():
     """The default box-size model is within ~25 % (median) of the tight hand boxes at their GPS distance."""
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     root = default_data_dir()
     if root is None or not (root / "screen_labels.csv").exists():

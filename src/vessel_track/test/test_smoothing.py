@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.smoothing import (
     MotionConfig,
     WorldKalmanFilter,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_track.tracker import (
     MultiTargetTracker,
     TrackerConfig,

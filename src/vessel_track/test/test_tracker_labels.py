@@ -18,7 +18,7 @@ VALIDATION_VIDEOS = (13, 14, 15, 16, 17)
 
 def _dataset():
     from vessel_calib.dataset import Dataset
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     root = default_data_dir()
     if root is None or not (root / "screen_labels.csv").exists():

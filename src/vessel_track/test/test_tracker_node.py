@@ -27,7 +27,7 @@ PARAMS = REPO / "config" / "parts" / "tracker.yaml"
 
 
 def detection_array(stamp, boxes, scores, class_id="boat"):
-    from vessel_calib.node_support import sec_to_stamp
+    from vessel_common.node_support import sec_to_stamp
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
     msg = Detection2DArray()
@@ -92,7 +92,7 @@ def spin_until(executor, predicate, timeout_s):
 def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from vessel_calib.node_support import reliable_qos, stamp_to_sec
+    from vessel_common.node_support import reliable_qos, stamp_to_sec
     from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
     from vessel_track.simulation import harbour_scenario
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig

@@ -23,11 +23,11 @@ graph this has to run where the image is, in the detector node (the ROS messages
 publishes the probability as the hypothesis score and drops the boxes below the threshold. ``pipeline
 --appearance MODEL.npz`` does exactly this to the detections it reads.
 
-    python -m vessel_track.appearance fit --data DIR --videos 7-12 --detections DET.csv --out config/x.npz \
+    ./vessel appearance fit --data DIR --videos 7-12 --detections DET.csv --out config/x.npz \
         [--features colour|colour_geometry_context] [--params config/aitas.yaml (the fuser's distance_model)]
-    python -m vessel_track.appearance score --data DIR --videos 13-17 --detections DET.csv --model X.npz \
+    ./vessel appearance score --data DIR --videos 13-17 --detections DET.csv --model X.npz \
         --out SCORED.csv [--combine replace|product] [--min-probability 0.5] [--leave-one-out 7-12]
-    python -m vessel_track.appearance rank --videos 13-17 --detections CSV
+    ./vessel appearance rank --videos 13-17 --detections CSV
 
 ``rank`` prints that share per video. ``score --leave-one-out`` scores each listed video with a model fitted on
 the other listed videos (honest scores on training data). ``--calib`` (default ``config/aitas_camera.yaml``) is
@@ -42,8 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.paths import parse_videos
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import parse_videos
 from vessel_detect.appearance_model import (
     COMBINE_MODES,
     DEFAULT_COMBINE,
@@ -240,9 +241,9 @@ def write_detections_csv(path: Path, frames) -> None:
     atomic_lines(Path(path), lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line: ``fit`` a model, ``score`` a detections CSV with one, ``rank`` how often it comes first."""
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.appearance", description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    """``fit``, ``score`` and ``rank``, with their options."""
+    parser = argparse.ArgumentParser(prog="./vessel appearance", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name in ("fit", "score"):
         p = sub.add_parser(name)
@@ -284,78 +285,87 @@ def main(argv: list[str] | None = None) -> int:
     rank.add_argument("--params", type=Path, default=None,
                       help="parameter YAML whose fuser fusion.anchor_offset the per-frame back-projection reads "
                            "boxes with (default config/aitas.yaml)")
-    args = parser.parse_args(argv)
-    try:
-        dataset = open_dataset(args.data)
-        videos = parse_videos(args.videos)
-        camera, _ = load_camera(args.calib, dataset)
-        if args.command == "rank":
-            frames = csv_detections(args.detections, dataset, videos)
-            if args.per_frame_out is not None:
+    return parser
 
-                settings = load_fuser_settings(args.params or default_params_path())
-                water_level = settings.water_level.load() if math.isfinite(camera.water_level_m) else None
-                lines = per_frame_backprojection(dataset, camera, frames, args.radius,
-                                                 settings.fusion.anchor_offset, args.pick, water_level,
-                                                 settings.water_level.max_hold_s)
-                atomic_lines(args.per_frame_out, lines)
-                print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
-            shares = top_box_share(dataset, camera, frames, args.radius)
-            if not shares:
-                raise DataError(f"{args.detections}: no frame of videos {args.videos} has a box within "
-                                f"{args.radius:g} px of the vessel's projected GPS")
-            for video, (first, total) in shares.items():
-                print(f"video {video:>3}: vessel first in {first:>3}/{total:<3} frames ({100 * first / total:.0f} %)")
-            first, total = (sum(v[i] for v in shares.values()) for i in (0, 1))
-            print(f"    all: vessel first in {first:>3}/{total:<3} frames ({100 * first / total:.1f} %)")
-            return 0
 
-        def size_model() -> tuple[float, float, float, float]:
-            """(a, b, c, d) of the fuser's distance model: what a fitted model's geometry features use."""
-            fitted = load_fuser_settings(args.params if args.params is not None else default_params_path())
-            return (fitted.distance_model.a, fitted.distance_model.b, fitted.distance_model.c,
-                    fitted.distance_model.d)
+def _size_model(args) -> tuple[float, float, float, float]:
+    """(a, b, c, d) of the fuser's distance model: what a fitted model's geometry features use."""
+    fitted = load_fuser_settings(args.params if args.params is not None else default_params_path())
+    return (fitted.distance_model.a, fitted.distance_model.b, fitted.distance_model.c, fitted.distance_model.d)
 
-        if args.command == "fit":
-            frames = csv_detections(args.detections, dataset, videos)
-            sizes = size_model()
-            features, labels, _ = labelled_crops(dataset, camera, videos, frames, args.features, sizes)
-            model = fit_logistic(features, labels, args.l2,
-                                 source=f"{args.detections.name} videos {args.videos}, GPS-labelled crops, "
-                                        f"{args.features}, l2 {args.l2:g}",
-                                 feature_set=args.features, size_model=sizes)
-            model.save(args.out)
-            print(f"fitted on {int((labels == 1).sum())} positive / {int((labels == 0).sum())} negative crops "
-                  f"-> {args.out}")
-            return 0
-        frames = csv_detections(args.detections, dataset, videos)
-        if args.leave_one_out:
-            train = parse_videos(args.leave_one_out)
-            train_frames = csv_detections(args.detections, dataset, train)
-            sizes = size_model()
-            features, labels, video_of = labelled_crops(dataset, camera, train, train_frames, args.features, sizes)
-            models = {}
 
-            def model_for_video(video):
-                if video not in models:
-                    keep = video_of != video
-                    models[video] = fit_logistic(features[keep], labels[keep], args.l2,
-                                                 feature_set=args.features, size_model=sizes)
-                return models[video]
-        else:
-            if args.model is None:
-                raise DataError("appearance score: give --model FILE.npz or --leave-one-out VIDEOS")
-            single = AppearanceModel.load(args.model)
-
-            def model_for_video(video):
-                return single
-        write_detections_csv(args.out, rescore(frames, dataset, videos, model_for_video, args.combine,
-                                               args.min_probability, camera, args.nested_overlap))
-        print(f"rescored {sum(len(f.boxes) for f in frames)} detections ({args.combine}) -> {args.out}")
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+def _rank(args, dataset, videos, camera) -> int:
+    """How often the highest-scored box of a frame is the vessel; optionally the per-frame back-projection."""
+    frames = csv_detections(args.detections, dataset, videos)
+    if args.per_frame_out is not None:
+        settings = load_fuser_settings(args.params or default_params_path())
+        water_level = settings.water_level.load() if math.isfinite(camera.water_level_m) else None
+        lines = per_frame_backprojection(dataset, camera, frames, args.radius, settings.fusion.anchor_offset,
+                                         args.pick, water_level, settings.water_level.max_hold_s)
+        atomic_lines(args.per_frame_out, lines)
+        print(f"wrote {len(lines) - 1} per-frame back-projections -> {args.per_frame_out}")
+    shares = top_box_share(dataset, camera, frames, args.radius)
+    if not shares:
+        raise DataError(f"{args.detections}: no frame of videos {args.videos} has a box within "
+                        f"{args.radius:g} px of the vessel's projected GPS")
+    for video, (first, total) in shares.items():
+        print(f"video {video:>3}: vessel first in {first:>3}/{total:<3} frames ({100 * first / total:.0f} %)")
+    first, total = (sum(v[i] for v in shares.values()) for i in (0, 1))
+    print(f"    all: vessel first in {first:>3}/{total:<3} frames ({100 * first / total:.1f} %)")
     return 0
+
+
+def _fit(args, dataset, videos, camera) -> int:
+    """Fit a model on GPS-labelled crops of ``videos`` and save it."""
+    frames = csv_detections(args.detections, dataset, videos)
+    sizes = _size_model(args)
+    features, labels, _ = labelled_crops(dataset, camera, videos, frames, args.features, sizes)
+    model = fit_logistic(features, labels, args.l2,
+                         source=f"{args.detections.name} videos {args.videos}, GPS-labelled crops, "
+                                f"{args.features}, l2 {args.l2:g}",
+                         feature_set=args.features, size_model=sizes)
+    model.save(args.out)
+    print(f"fitted on {int((labels == 1).sum())} positive / {int((labels == 0).sum())} negative crops -> {args.out}")
+    return 0
+
+
+def _score(args, dataset, videos, camera) -> int:
+    """Rescore a detections CSV with one model, or leave-one-video-out with models fitted on the others."""
+    frames = csv_detections(args.detections, dataset, videos)
+    if args.leave_one_out:
+        train = parse_videos(args.leave_one_out)
+        train_frames = csv_detections(args.detections, dataset, train)
+        sizes = _size_model(args)
+        features, labels, video_of = labelled_crops(dataset, camera, train, train_frames, args.features, sizes)
+        models = {}
+
+        def model_for_video(video):
+            if video not in models:
+                keep = video_of != video
+                models[video] = fit_logistic(features[keep], labels[keep], args.l2,
+                                             feature_set=args.features, size_model=sizes)
+            return models[video]
+    else:
+        if args.model is None:
+            raise DataError("appearance score: give --model FILE.npz or --leave-one-out VIDEOS")
+        single = AppearanceModel.load(args.model)
+
+        def model_for_video(video):
+            return single
+    write_detections_csv(args.out, rescore(frames, dataset, videos, model_for_video, args.combine,
+                                           args.min_probability, camera, args.nested_overlap))
+    print(f"rescored {sum(len(f.boxes) for f in frames)} detections ({args.combine}) -> {args.out}")
+    return 0
+
+
+@command_line_tool
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``fit`` a model, ``score`` a detections CSV with one, ``rank`` how often it comes first."""
+    args = build_parser().parse_args(argv)
+    dataset = open_dataset(args.data)
+    videos = parse_videos(args.videos)
+    camera, _ = load_camera(args.calib, dataset)
+    return {"rank": _rank, "fit": _fit, "score": _score}[args.command](args, dataset, videos, camera)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ Inverting: a width gives a depth, the depth and the box's ideal x give the ideal
 Because ``1 / z_p`` is linear in the box size, a constant pixel noise of the size becomes a constant noise
 of this y: the variances used for the fusion weights do not depend on distance.
 
-The fit is ``distance_model_fit.py`` (``python -m vessel_track.distance_model_fit fit``).
+The fit is ``distance_model_fit.py`` (``./vessel fit distance-model``).
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vessel_calib.errors import CalibrationError, DataError
+from vessel_common.errors import CalibrationError, DataError
 
 #: Boxes whose edge is within this many pixels of the image border are cut by it: their size says nothing.
 BORDER_MARGIN_PX = 1.0
@@ -83,7 +83,7 @@ class BoxSizeDistanceModel:
 
     ``sigma_width_px`` and ``sigma_height_px`` are the robust standard deviations of the fit residuals.
     The defaults are the fit on the 66 hand boxes of training videos 7-12 with the calibration fitted on the
-    same videos (``python -m vessel_track.distance_model_fit fit``).
+    same videos (``./vessel fit distance-model``).
     """
 
     a: float = 4838.3043242984

@@ -2,7 +2,7 @@
 
 Writes the ``distance_model`` and ``fusion.cue_*`` blocks of the fuser's parameters::
 
-    python -m vessel_track.distance_model_fit fit --data DIR --videos 7-12 [--calib FILE.yaml] --out FILE.yaml
+    ./vessel fit distance-model --data DIR --videos 7-12 [--calib FILE.yaml] --out FILE.yaml
 
 The runtime model is ``distance_model.BoxSizeDistanceModel``; this module holds its fit, the (box, GPS) pairs it is
 fitted on and the cross-validated noise of the cues.
@@ -19,8 +19,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vessel_calib.calibration import calibrate_from_labels
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.paths import parse_videos
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import parse_videos
 from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_of_world
 from vessel_track.error_model_fit import update_params_file
 from vessel_track.fuser_settings import load_fuser_settings
@@ -182,67 +183,62 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor
     return cue_statistics_of_residuals(np.vstack(resid), np.concatenate(x_resid))
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
-    """Command line: ``fit --data DIR --videos 7-12 [--calib FILE] --out FILE.yaml``."""
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.distance_model_fit",
+    """Command line: ``--data DIR --videos 7-12 [--calib FILE] --out FILE.yaml``."""
+    parser = argparse.ArgumentParser(prog="./vessel fit distance-model",
                                      description="Fit the box-size distance model and the fusion weights.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    fit = sub.add_parser("fit", help="fit a, b, c, d and the cue covariance to hand boxes with GPS")
-    fit.add_argument("--data", type=Path, default=None, help="dataset folder (default: $VESSEL_DATA or "
+    parser.add_argument("--data", type=Path, default=None, help="dataset folder (default: $VESSEL_DATA or "
                                                               "../shared/aitas)")
-    fit.add_argument("--videos", default="7-12", help="training videos (default 7-12, the paper's training split)")
-    fit.add_argument("--calib", type=Path, default=None,
-                     help="calibration YAML (default: config/aitas_camera.yaml if present, else the dataset's "
+    parser.add_argument("--videos", default="7-12", help="training videos (default 7-12, the paper's training split)")
+    parser.add_argument("--calib", type=Path, default=None,
+                        help="calibration YAML (default: config/aitas_camera.yaml if present, else the dataset's "
                           "paper-corrected calibration)")
-    fit.add_argument("--out", type=Path, required=True, help="parameter YAML to write/update (fuser block)")
-    fit.add_argument("--node", default="fuser", help="node block to write into (default: fuser)")
-    fit.add_argument("--detections", type=Path, default=None,
-                     help="fit to the detector's boxes of the vessel (CSV video,frame,x1,y1,x2,y2,score,class_id "
+    parser.add_argument("--out", type=Path, required=True, help="parameter YAML to write/update (fuser block)")
+    parser.add_argument("--node", default="fuser", help="node block to write into (default: fuser)")
+    parser.add_argument("--detections", type=Path, default=None,
+                        help="fit to the detector's boxes of the vessel (CSV video,frame,x1,y1,x2,y2,score,class_id "
                           "over the training videos) instead of the hand boxes; the calibration still comes from "
                           "the hand labels")
-    fit.add_argument("--in-sample", action="store_true",
-                     help="measure the cue noise on the training boxes themselves instead of leave-one-video-out "
+    parser.add_argument("--in-sample", action="store_true",
+                        help="measure the cue noise on the training boxes themselves instead of leave-one-video-out "
                           "(in-sample is optimistic: the calibration was fitted on the same boxes)")
     args = parser.parse_args(argv)
-    try:
 
-        dataset = open_dataset(args.data)
-        camera, camera_source = load_camera(args.calib, dataset)
-        videos = parse_videos(args.videos)
+    dataset = open_dataset(args.data)
+    camera, camera_source = load_camera(args.calib, dataset)
+    videos = parse_videos(args.videos)
+    if args.detections is None:
+        boxes, world = training_pairs(dataset, camera, videos)
+        source = f"screen_labels videos {args.videos}, camera {Path(camera_source.split(' ')[0]).name}"
+    else:
+        boxes, world = detector_pairs(dataset, camera, videos, args.detections)
+        source = f"detector boxes {args.detections.name} videos {args.videos}, camera " \
+                 f"{Path(camera_source.split(' ')[0]).name}"
+    model = fit_distance_model(camera, boxes, world, source=source)
+    # The file's other fusion settings stay; the cues are measured on boxes read as these boxes are read,
+    # and at the water level of each box's instant when the file names a water-level table.
+    settings = load_fuser_settings(args.out, args.node) if args.out.is_file() else None
+    kept = settings.fusion if settings is not None else FusionConfig()
+    water_level = settings.water_level.load() if settings is not None else None
+    config = kept if args.detections is not None else dataclasses.replace(kept, anchor_offset=0.0)
+    if args.in_sample:
         if args.detections is None:
-            boxes, world = training_pairs(dataset, camera, videos)
-            source = f"screen_labels videos {args.videos}, camera {Path(camera_source.split(' ')[0]).name}"
+            stamps = training_pairs(dataset, camera, videos, with_stamps=True)[2]
         else:
-            boxes, world = detector_pairs(dataset, camera, videos, args.detections)
-            source = f"detector boxes {args.detections.name} videos {args.videos}, camera " \
-                     f"{Path(camera_source.split(' ')[0]).name}"
-        model = fit_distance_model(camera, boxes, world, source=source)
-        # The file's other fusion settings stay; the cues are measured on boxes read as these boxes are read,
-        # and at the water level of each box's instant when the file names a water-level table.
-        settings = load_fuser_settings(args.out, args.node) if args.out.is_file() else None
-        kept = settings.fusion if settings is not None else FusionConfig()
-        water_level = settings.water_level.load() if settings is not None else None
-        config = kept if args.detections is not None else dataclasses.replace(kept, anchor_offset=0.0)
-        if args.in_sample:
-            if args.detections is None:
-                stamps = training_pairs(dataset, camera, videos, with_stamps=True)[2]
-            else:
-                stamps = detector_pairs(dataset, camera, videos, args.detections, with_stamps=True)[2]
-            levels = None if water_level is None else water_level.level_at(stamps)
-            stats = cue_statistics_of_residuals(*cue_residuals_at_levels(camera, model, boxes, world, levels,
-                                                                         config))
-            how = "in-sample"
-        else:
-            stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections,
-                                                   water_level=water_level)
-            how = "leave-one-video-out"
-        update_params_file(args.out, args.node, "distance_model", model.to_params())
-        fusion_block = kept.to_params()
-        fusion_block.update(stats.to_params())
-        update_params_file(args.out, args.node, "fusion", fusion_block)
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+            stamps = detector_pairs(dataset, camera, videos, args.detections, with_stamps=True)[2]
+        levels = None if water_level is None else water_level.level_at(stamps)
+        stats = cue_statistics_of_residuals(*cue_residuals_at_levels(camera, model, boxes, world, levels,
+                                                                     config))
+        how = "in-sample"
+    else:
+        stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections,
+                                               water_level=water_level)
+        how = "leave-one-video-out"
+    update_params_file(args.out, args.node, "distance_model", model.to_params())
+    fusion_block = kept.to_params()
+    fusion_block.update(stats.to_params())
+    update_params_file(args.out, args.node, "fusion", fusion_block)
     print(f"distance model from {model.n_points} boxes: width = {model.a:.0f}/depth + {model.b:.1f} px "
           f"(sigma {model.sigma_width_px:.1f} px), height = {model.c:.0f}/depth + {model.d:.1f} px "
           f"(sigma {model.sigma_height_px:.1f} px)")

@@ -2,7 +2,7 @@
 
 The fuser puts ``expected_error_m`` on every track and the GPS publisher turns it into the NavSatFix covariance,
 so consumers know that a fix 1 km out is worth far less than one at 100 m. The model is fitted by
-``python -m vessel_track.error_model_fit`` (``error_model_fit.py``) and stored in the ``fuser`` block of the
+``./vessel fit error-model`` (``error_model_fit.py``) and stored in the ``fuser`` block of the
 parameter file (``error_model.*``).
 
 Kinds: ``origin`` the least-squares line through the origin (the paper's, ``Σ e d / Σ d²``), ``affine``
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 #: The paper's figure: 5.55 m of error per 100 m of distance.
 PAPER_SLOPE = 0.0555

@@ -1,6 +1,6 @@
 """Fit the error model (``error_model.ErrorModel``) from scored runs and write it into a parameter file.
 
-    python -m vessel_track.error_model_fit fit SCORES.csv --out FILE.yaml [--kind origin|affine|quantile]
+    ./vessel fit error-model SCORES.csv --out FILE.yaml [--kind origin|affine|quantile]
 
 from the per-prediction scores ``./vessel eval`` writes (``scores.csv``: columns ``error_m`` and
 ``distance_m``); the ``fuser`` block's ``error_model.*`` changes, the rest of the file stays.
@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError, VesselError
 from vessel_calib.params import update_params_block
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
 from vessel_track.error_model import KINDS, ErrorModel
 from vessel_track.node_params import FUSER_PARAMETERS
 
@@ -88,31 +89,26 @@ def update_params_file(path: Path, node: str, block: str, values: dict) -> None:
     update_params_block(path, node, block, values, descriptions)
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
-    """Command line: ``fit SCORES.csv --out FILE.yaml``."""
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.error_model_fit",
+    """Command line: ``SCORES.csv --out FILE.yaml``."""
+    parser = argparse.ArgumentParser(prog="./vessel fit error-model",
                                      description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    fit = sub.add_parser("fit", help="fit the error model to a scores.csv and store it in a parameter file")
-    fit.add_argument("scores", type=Path, nargs="+", help="scores.csv file(s) written by the evaluation")
-    fit.add_argument("--out", type=Path, required=True, help="parameter YAML to write/update (fuser block)")
-    fit.add_argument("--kind", choices=KINDS, default="origin", help="origin (the paper's), affine, quantile")
-    fit.add_argument("--quantile", type=float, default=0.8, help="share of errors below the line (quantile)")
-    fit.add_argument("--node", default="fuser", help="node block to write into (default: fuser)")
-    fit.add_argument("--source", default=None,
-                     help="where the scores come from, for the file (error_model.source; default 'fit on DIR/FILE')")
+    parser.add_argument("scores", type=Path, nargs="+", help="scores.csv file(s) written by the evaluation")
+    parser.add_argument("--out", type=Path, required=True, help="parameter YAML to write/update (fuser block)")
+    parser.add_argument("--kind", choices=KINDS, default="origin", help="origin (the paper's), affine, quantile")
+    parser.add_argument("--quantile", type=float, default=0.8, help="share of errors below the line (quantile)")
+    parser.add_argument("--node", default="fuser", help="node block to write into (default: fuser)")
+    parser.add_argument("--source", default=None,
+                        help="where the scores come from, for the file (error_model.source; default 'fit on DIR/FILE')")
     args = parser.parse_args(argv)
-    try:
-        parts = [read_scores_csv(p) for p in args.scores]
-        d = np.concatenate([p[0] for p in parts])
-        e = np.concatenate([p[1] for p in parts])
-        source = args.source or "fit on " + ", ".join(f"{p.parent.name}/{p.name}" if p.parent.name else p.name
-                                                      for p in args.scores)
-        model = fit_error_model(d, e, args.kind, args.quantile, source=source)
-        update_params_file(args.out, args.node, "error_model", model.to_params())
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    parts = [read_scores_csv(p) for p in args.scores]
+    d = np.concatenate([p[0] for p in parts])
+    e = np.concatenate([p[1] for p in parts])
+    source = args.source or "fit on " + ", ".join(f"{p.parent.name}/{p.name}" if p.parent.name else p.name
+                                                  for p in args.scores)
+    model = fit_error_model(d, e, args.kind, args.quantile, source=source)
+    update_params_file(args.out, args.node, "error_model", model.to_params())
     print(f"error model ({model.kind}, {model.n_points} points): expected error = {model.intercept_m:.2f} m + "
           f"{100 * model.slope:.2f} m per 100 m  -> {args.out} ({args.node}.error_model)")
     return 0

@@ -1,6 +1,6 @@
 """Scoring like the paper: predicted vessel positions against its GPS, per video, overall and on the paper's splits.
 
-    python -m vessel_track.evaluation PREDICTIONS.csv [--data DIR] [--videos 13-17] [--out DIR|summary.json]
+    ./vessel eval PREDICTIONS.csv [--data DIR] [--videos 13-17] [--out DIR|summary.json]
 
 ``PREDICTIONS.csv`` has the columns ``video,t_utc_s,lat,lon`` (``t_utc_s``: seconds since 00:00 UTC of the
 recording day, one row per frame where the vessel of interest was estimated).
@@ -37,10 +37,11 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.errors import DataError, VesselError
 from vessel_calib.gps_track import seconds_of_day_to_epoch
 from vessel_calib.params import atomic_write_text
-from vessel_calib.paths import parse_videos
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import parse_videos
 from vessel_track.offline_data import load_camera, open_dataset
 
 PAPER_M_PER_100M = 5.55
@@ -90,7 +91,7 @@ def read_predictions(path: Path) -> Predictions:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such predictions file; write one with `./vessel demo` or "
-                        f"`python -m vessel_track.pipeline ... --out DIR`")
+                        f"`./vessel pipeline ... --out DIR`")
     videos, times, lats, lons = [], [], [], []
     reasons: dict[str, int] = {}
     try:
@@ -543,9 +544,10 @@ def evaluate(predictions_path: Path, data_dir: Path | None = None, videos: list[
     return summary
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
     """Command line entry point."""
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.evaluation",
+    parser = argparse.ArgumentParser(prog="./vessel eval",
                                      description="Score predicted vessel positions against GPS like the paper.")
     parser.add_argument("predictions", type=Path, help="CSV with video,t_utc_s,lat,lon")
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default $VESSEL_DATA or "
@@ -561,13 +563,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--match-tolerance", type=float, default=0.5,
                         help="a frame is covered by a prediction this close in time, s (default 0.5)")
     args = parser.parse_args(argv)
-    try:
 
-        summary = evaluate(args.predictions, args.data, parse_videos(args.videos), args.out, args.calib,
-                           args.frames, not args.no_plots, args.max_gps_gap, args.match_tolerance)
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    summary = evaluate(args.predictions, args.data, parse_videos(args.videos), args.out, args.calib,
+                       args.frames, not args.no_plots, args.max_gps_gap, args.match_tolerance)
     print(format_table(summary))
     reasons = summary["settings"].get("skipped_reasons") or {}
     if reasons:

@@ -16,15 +16,9 @@ import math
 import numpy as np
 from rclpy.node import Node
 
-from vessel_calib.node_support import (
-    NodeHealth,
-    NodeState,
-    declare_camera_model,
-    declare_parameter,
-    reliable_qos,
-    stamp_to_sec,
-)
-from vessel_calib.state_file import settings_fingerprint
+from vessel_calib.camera_parameters import declare_camera_model
+from vessel_common.node_support import NodeHealth, NodeState, declare_parameter, reliable_qos, stamp_to_sec
+from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
 from vessel_track.node_params import FUSER_TOPICS, declare_fuser_settings, main_with_checks

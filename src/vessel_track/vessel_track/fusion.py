@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.errors import CalibrationError, DataError
+from vessel_common.errors import CalibrationError, DataError
 from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_scale
 from vessel_track.error_model import ErrorModel
 from vessel_track.selection import OnlineTargetSelector, SelectionConfig
@@ -37,7 +37,7 @@ WEIGHT_MODES = ("fitted", "paper", "position_only")
 SCREEN_SOURCES = ("measured", "filtered")
 
 #: Covariance of the cues' ideal-y errors (position, width, height), px^2, measured leave-one-video-out on the
-#: hand boxes of training videos 7-12 (``python -m vessel_track.distance_model_fit fit``).
+#: hand boxes of training videos 7-12 (``./vessel fit distance-model``).
 DEFAULT_CUE_COVARIANCE = (5.7147051439, -4.8621659687, -4.9854487734, -4.8621659687, 68.5918439092, 48.7700666298,
                           -4.9854487734, 48.7700666298, 54.709869639)
 PAPER_WEIGHTS = (0.5, 0.25, 0.25)

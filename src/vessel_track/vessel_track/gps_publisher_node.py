@@ -26,13 +26,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from vessel_calib import geodesy
-from vessel_calib.node_support import (
-    NodeHealth,
-    declare_camera_model,
-    declare_parameter,
-    reliable_qos,
-    stamp_to_sec,
-)
+from vessel_calib.camera_parameters import declare_camera_model
+from vessel_common.node_support import NodeHealth, declare_parameter, reliable_qos, stamp_to_sec
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
 from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, main_with_checks
@@ -163,7 +158,7 @@ class GpsPublisherNode(Node):
         self.altitude_variance_m2 = param("altitude_variance_m2", float_range=(0.0, 1e12))
         self.publish_no_fix = param("publish_no_fix")
         depth = param("qos_depth", int_range=(1, 1000))
-        from vessel_calib.errors import DataError
+        from vessel_common.errors import DataError
 
         if self.covariance_mode not in COVARIANCE_MODES:
             raise DataError(f"gps_publisher: covariance_mode must be one of {', '.join(COVARIANCE_MODES)}, got "

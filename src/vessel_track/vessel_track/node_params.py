@@ -9,8 +9,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from vessel_calib.errors import CalibrationError, DataError
-from vessel_calib.state_file import STATE_PARAMETERS
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import CalibrationError, DataError
+from vessel_common.state_file import STATE_PARAMETERS
 from vessel_track.fuser_settings import FUSION_ANCHOR_MOVED, FuserSettings, flatten
 
 _INF = 1.0e12
@@ -119,7 +120,7 @@ def fuser_parameter_defaults() -> dict:
 
 def declare_fuser_settings(node) -> FuserSettings:
     """Declare every fusion parameter on ``node`` (with descriptors) and build the settings from them."""
-    from vessel_calib.node_support import declare_parameter
+    from vessel_common.node_support import declare_parameter
 
     if "fusion.anchor" in getattr(node, "_parameter_overrides", {}):  # rclpy keeps undeclared overrides there
         raise DataError(FUSION_ANCHOR_MOVED)  # a file from before camera.box_anchor: say so rather than ignore it
@@ -165,8 +166,8 @@ def params_file_problem(argv: Sequence[str] | None) -> str | None:
 
 
 def main_with_checks(node_class, argv: Sequence[str] | None = None) -> int:
-    """Check ``--params-file`` arguments, then run the node with ``vessel_calib.node_support.run_node``."""
-    from vessel_calib.node_support import run_node
+    """Check ``--params-file`` arguments, then run the node with ``vessel_common.node_support.run_node``."""
+    from vessel_common.node_support import run_node
 
     args = list(sys.argv if argv is None else argv)
     problem = params_file_problem(args)
@@ -218,9 +219,9 @@ def _yaml_value(value) -> str:
 def render_fuser_yaml(settings: FuserSettings) -> str:
     """``config/parts/fuser.yaml``: the fuser block with every parameter and its description as a comment."""
     lines = ["# Fuser node (vessel_track fuser): screen tracks -> sea-plane tracks. Written by",
-             "# `python -m vessel_track.node_params render`; distance_model/fusion.cue_* from",
-             "# `python -m vessel_track.distance_model_fit fit`, error_model from",
-             "# `python -m vessel_track.error_model_fit fit`.",
+             "# `./vessel params render`; distance_model/fusion.cue_* from",
+             "# `./vessel fit distance-model`, error_model from",
+             "# `./vessel fit error-model`.",
              "fuser:", "  ros__parameters:"]
     for name, (default, description) in FUSER_TOPICS.items():
         lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
@@ -244,28 +245,24 @@ def render_gps_publisher_yaml() -> str:
     return "\n".join(lines) + "\n"
 
 
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """``render --params FILE --out config/parts/``: write the commented fuser and gps_publisher part files."""
     import argparse
 
-    from vessel_calib.errors import VesselError
     from vessel_calib.params import atomic_write_text
     from vessel_track.fuser_settings import load_fuser_settings
 
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.node_params")
+    parser = argparse.ArgumentParser(prog="./vessel params")
     sub = parser.add_subparsers(dest="command", required=True)
     render = sub.add_parser("render", help="write config/parts/fuser.yaml and gps_publisher.yaml")
     render.add_argument("--params", type=Path, default=None, help="parameter YAML whose fuser block to use "
                                                                   "(default: the built-in defaults)")
     render.add_argument("--out", type=Path, required=True, help="folder for fuser.yaml and gps_publisher.yaml")
     args = parser.parse_args(argv)
-    try:
-        settings = load_fuser_settings(args.params)
-        atomic_write_text(args.out / "fuser.yaml", render_fuser_yaml(settings))
-        atomic_write_text(args.out / "gps_publisher.yaml", render_gps_publisher_yaml())
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    settings = load_fuser_settings(args.params)
+    atomic_write_text(args.out / "fuser.yaml", render_fuser_yaml(settings))
+    atomic_write_text(args.out / "gps_publisher.yaml", render_gps_publisher_yaml())
     print(f"written: {args.out / 'fuser.yaml'}, {args.out / 'gps_publisher.yaml'}")
     return 0
 

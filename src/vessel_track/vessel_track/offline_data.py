@@ -15,9 +15,9 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_calib.dataset import Dataset
-from vessel_calib.errors import DataError
 from vessel_calib.params import atomic_write_text, load_camera_yaml
-from vessel_calib.paths import default_data_dir, repo_root
+from vessel_common.errors import DataError
+from vessel_common.paths import default_data_dir, repo_root
 from vessel_detect.detections_csv import read_detections_csv
 
 

@@ -1,6 +1,6 @@
 """The whole post-processing chain without ROS: detections -> tracker -> fusion -> selection -> positions.
 
-    python -m vessel_track.pipeline --data DIR --videos 13-17 --detections labels|FILE.csv --out DIR
+    ./vessel pipeline --data DIR --videos 13-17 --detections labels|FILE.csv --out DIR
         [--mode online|offline] [--calib FILE.yaml] [--params FILE.yaml] [--appearance MODEL.npz] [--no-eval]
 
 writes ``predictions.csv`` (``video,t_utc_s,lat,lon``: the vessel of interest), ``tracks.csv`` (every track,
@@ -41,9 +41,10 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_calib.calibration import calibrate_from_labels
-from vessel_calib.errors import DataError, VesselError
 from vessel_calib.params import atomic_write_text
-from vessel_calib.paths import parse_videos
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import parse_videos
 from vessel_track import appearance
 from vessel_track.distance_model_fit import cross_validated_cue_statistics, fit_distance_model, training_pairs
 from vessel_track.evaluation import evaluate, format_table
@@ -400,8 +401,8 @@ def _filter_against_its_boxes(out: Path, results: list[VideoResult], camera, dat
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line entry point."""
+def build_parser() -> argparse.ArgumentParser:
+    """The pipeline's options."""
     from vessel_detect.appearance_model import (
         COMBINE_MODES,
         DEFAULT_COMBINE,
@@ -409,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
         DEFAULT_NESTED_OVERLAP,
     )
 
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.pipeline", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="./vessel pipeline", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default $VESSEL_DATA or "
                                                                 "../shared/aitas)")
     parser.add_argument("--videos", default="13-17", help="videos to run (default 13-17)")
@@ -444,56 +445,63 @@ def main(argv: list[str] | None = None) -> int:
                              "smaller box (0: off; the detector node's appearance_nested_overlap)")
     parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
     parser.add_argument("--no-plots", action="store_true", help="score without plots")
-    args = parser.parse_args(argv)
-    try:
+    return parser
 
-        dataset = open_dataset(args.data)
-        videos = parse_videos(args.videos)
-        camera, camera_source = load_camera(args.calib, dataset)
-        params_path = args.params if args.params is not None else default_params_path()
-        settings = load_fuser_settings(params_path)
-        if not args.leave_one_out:
-            settings, note = settings.for_camera(camera, camera_source)
-            if note:
-                print(f"note: {note}", file=sys.stderr)
-        if args.detections == "labels":
-            frames = label_detections(dataset, videos)
-            settings = settings.for_hand_boxes()
-        else:
-            frames = csv_detections(Path(args.detections), dataset, videos)
-            if args.appearance is not None:
 
-                model = appearance.AppearanceModel.load(args.appearance)
-                frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
-                                            args.appearance_combine, args.appearance_min, camera,
-                                            args.appearance_nested)
+def _frames_and_settings(args, dataset, videos, camera, camera_source: str, params_path):
+    """The detections to run (hand labels, or a CSV optionally rescored) and the fuser settings for them."""
+    settings = load_fuser_settings(params_path)
+    if not args.leave_one_out:
+        settings, note = settings.for_camera(camera, camera_source)
+        if note:
+            print(f"note: {note}", file=sys.stderr)
+    if args.detections == "labels":
+        frames = label_detections(dataset, videos)
+        settings = settings.for_hand_boxes()
+    else:
+        frames = csv_detections(Path(args.detections), dataset, videos)
+        if args.appearance is not None:
 
-        config = PipelineConfig(args.mode, args.screen_source, args.max_coast, load_tracker_config(params_path),
-                                settings)
-        if args.leave_one_out:
-            results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config,
-                                          camera.box_anchor)
-            camera_source = f"calibrated per video on {args.leave_one_out} minus that video"
-        else:
-            results = run(frames, camera, config)
-        args.out.mkdir(parents=True, exist_ok=True)
-        write_predictions_csv(args.out / "predictions.csv", results)
-        write_tracks_csv(args.out / "tracks.csv", results)
-        atomic_write_text(args.out / "counts.json",
-                          json.dumps({str(r.video): r.counts for r in results}, indent=1, sort_keys=True) + "\n")
-        print(f"{sum(len(r.predictions) for r in results)} predictions from {len(frames)} frames "
-              f"({args.mode}, camera: {camera_source}, parameters: {params_path or 'defaults'}) -> {args.out}")
-        if not args.no_eval:
+            model = appearance.AppearanceModel.load(args.appearance)
+            frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
+                                        args.appearance_combine, args.appearance_min, camera,
+                                        args.appearance_nested)
 
-            coverage_frames = "labels" if args.detections == "labels" else "frames"
-            summary = evaluate(args.out / "predictions.csv", dataset.path, videos, args.out, args.calib,
-                               coverage_frames, not args.no_plots)
-            print(format_table(summary))
-            if args.mode == "online":
-                print(_filter_against_its_boxes(args.out, results, camera, dataset, videos))
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    return frames, settings
+
+
+@command_line_tool
+def main(argv: list[str] | None = None) -> int:
+    """Command line entry point."""
+    args = build_parser().parse_args(argv)
+    dataset = open_dataset(args.data)
+    videos = parse_videos(args.videos)
+    camera, camera_source = load_camera(args.calib, dataset)
+    params_path = args.params if args.params is not None else default_params_path()
+    frames, settings = _frames_and_settings(args, dataset, videos, camera, camera_source, params_path)
+    config = PipelineConfig(args.mode, args.screen_source, args.max_coast, load_tracker_config(params_path),
+                            settings)
+    if args.leave_one_out:
+        results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config,
+                                      camera.box_anchor)
+        camera_source = f"calibrated per video on {args.leave_one_out} minus that video"
+    else:
+        results = run(frames, camera, config)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_predictions_csv(args.out / "predictions.csv", results)
+    write_tracks_csv(args.out / "tracks.csv", results)
+    atomic_write_text(args.out / "counts.json",
+                      json.dumps({str(r.video): r.counts for r in results}, indent=1, sort_keys=True) + "\n")
+    print(f"{sum(len(r.predictions) for r in results)} predictions from {len(frames)} frames "
+          f"({args.mode}, camera: {camera_source}, parameters: {params_path or 'defaults'}) -> {args.out}")
+    if not args.no_eval:
+
+        coverage_frames = "labels" if args.detections == "labels" else "frames"
+        summary = evaluate(args.out / "predictions.csv", dataset.path, videos, args.out, args.calib,
+                           coverage_frames, not args.no_plots)
+        print(format_table(summary))
+        if args.mode == "online":
+            print(_filter_against_its_boxes(args.out, results, camera, dataset, videos))
     return 0
 
 

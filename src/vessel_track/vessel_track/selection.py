@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 _FORBIDDEN = 1e9
 CONFIDENCE_SCORES = ("percentile", "evidence")

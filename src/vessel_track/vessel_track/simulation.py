@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.errors import DataError
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
 from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
 CHALLENGE_H = ((-441.0, 379.0, -1000.0), (-217.0, -56.5, -548.0), (-0.512, -0.144, 1.0))
@@ -553,12 +554,12 @@ def benchmark(intervals: Sequence[float], seeds: int, settings: dict, duration_s
     return rows
 
 
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m vessel_track.simulation``: tracker metrics on the simulated harbour scenario."""
+    """``./vessel simulate``: tracker metrics on the simulated harbour scenario."""
     import argparse
-    import sys
 
-    parser = argparse.ArgumentParser(prog="python -m vessel_track.simulation", description=(
+    parser = argparse.ArgumentParser(prog="./vessel simulate", description=(
         "Track the simulated harbour scenario (crossing, occlusion, clutter, mooring post) and print id switches, "
         "extra tracks per vessel, confirmed clutter tracks, screen RMSE of confirmed tracks vs raw detections."))
     parser.add_argument("--interval", type=float, nargs="+", default=[4.0, 1.0, 0.1],
@@ -570,12 +571,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="TrackerConfig field, e.g. --set process_noise_model=paper (repeatable)")
     args = parser.parse_args(argv)
-    try:
-        settings = dict(_parse_setting(s) for s in args.set)
-        rows = benchmark(args.interval, args.seeds, settings, args.duration, args.scenario)
-    except DataError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    settings = dict(_parse_setting(s) for s in args.set)
+    rows = benchmark(args.interval, args.seeds, settings, args.duration, args.scenario)
     print(f"scenario {args.scenario}, tracker settings: {settings or 'defaults'}")
     for r in rows:
         print(f"dt={r['interval_s']:g}s runs={r['runs']} id_switches={r['id_switches']} "

@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 #: Squared Mahalanobis distance beyond which a 2-D measurement is an outlier (chi-square, 2 dof, p = 0.999).
 CHI2_2DOF_999 = 13.8155

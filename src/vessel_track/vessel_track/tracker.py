@@ -10,7 +10,7 @@ Differences from the paper, each a config field so the paper's behaviour can be 
 
 * Full-resolution pixels (the paper worked at half resolution, so its R = 10² px² and 80 px gate are
   20² px² and 160 px here). The defaults are not those: they were chosen by measurement on simulated harbour
-  traffic at 4 s, 1 s and 0.1 s between frames (``python -m vessel_track.simulation``) and on the hand-labelled
+  traffic at 4 s, 1 s and 0.1 s between frames (``./vessel simulate``) and on the hand-labelled
   boxes of the challenge videos (``test/test_tracker_labels.py``); the paper-scaled values split the labelled
   vessel into more tracks and let clutter confirm at live frame rates.
 * Association is a global assignment (Hungarian, ``scipy.optimize.linear_sum_assignment``) of detections to
@@ -40,8 +40,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.optimize import linear_sum_assignment
 
-from vessel_calib.errors import CalibrationError, DataError
 from vessel_calib.params import node_blocks, read_params_yaml
+from vessel_common.errors import CalibrationError, DataError
 
 PROCESS_NOISE_MODELS = ("continuous_wna", "discrete_wna", "paper")
 ASSOCIATION_METHODS = ("global", "greedy")

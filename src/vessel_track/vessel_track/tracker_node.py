@@ -21,8 +21,8 @@ from dataclasses import fields
 import numpy as np
 from rclpy.node import Node
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.node_support import (
+from vessel_common.errors import DataError, VesselError
+from vessel_common.node_support import (
     NodeHealth,
     NodeState,
     declare_parameter,
@@ -31,7 +31,7 @@ from vessel_calib.node_support import (
     sec_to_stamp,
     stamp_to_sec,
 )
-from vessel_calib.state_file import settings_fingerprint
+from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
 from vessel_track.tracker import (
     ASSOCIATION_METHODS,

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 from vessel_detect.box_ops import box_iou
 
 CLASS_NAMES = ("vessel_of_interest", "vessel")

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from torch import fx, nn
 
-from vessel_calib.errors import ModelError
+from vessel_common.errors import ModelError
 
 STRIDES = (8, 16, 32)
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError, ModelError
-from vessel_calib.paths import repo_file
+from vessel_common.errors import DataError, ModelError
+from vessel_common.paths import repo_file
 from vessel_detect.training.augment import band_input
 
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError
-from vessel_calib.paths import repo_file, repo_root
+from vessel_common.errors import DataError
+from vessel_common.paths import repo_file, repo_root
 
 
 def add_parser(sub) -> None:

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import torch
 
-from vessel_calib.errors import DataError, ModelError
+from vessel_common.errors import DataError, ModelError
 from vessel_detect.decoders import OutputLayout
 from vessel_detect.detector import DetectorConfig, VesselDetector, horizon_band_top
 from vessel_detect.recall import RecallResult, recall_at

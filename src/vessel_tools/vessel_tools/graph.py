@@ -1,8 +1,7 @@
-"""The whole node graph as separate processes, for this pip-only install (no ``ros2 launch`` on PyPI).
+"""``./vessel graph``: the whole node graph as separate processes, what the launch file does with ``ros2 launch``.
 
-``GRAPH_NODES`` is the one description of the graph: the launch file ``vessel_graph.launch.py`` builds its
-``launch_ros`` nodes from it, and ``./vessel graph`` (this module) starts the same executables with the same
-parameter files, as ``ros2 run`` would. The demo and the benchmark drive the graph through ``GraphRunner``.
+The nodes are ``vessel_track.graph_nodes.GRAPH_NODES``, the launch file's list; each is started with the same
+parameter files, as ``ros2 run`` would. The demo and the benchmarks drive the graph through ``GraphRunner``.
 """
 
 from __future__ import annotations
@@ -21,62 +20,19 @@ from pathlib import Path
 
 import yaml
 
-from vessel_calib.errors import VesselError
-
-
-@dataclass(frozen=True)
-class GraphNode:
-    """One node of the graph: which executable, and what it is for."""
-
-    name: str
-    package: str
-    executable: str
-    role: str
-
-
-GRAPH_NODES: tuple[GraphNode, ...] = (
-    GraphNode("camera", "vessel_detect", "camera", "replays a bag, video, folder or device as images + /clock"),
-    GraphNode("detector", "vessel_detect", "detector", "ONNX detector: images -> /vessel/detections"),
-    GraphNode("tracker", "vessel_track", "tracker", "Kalman tracks in screen space -> /vessel/tracks/screen"),
-    GraphNode("fuser", "vessel_track", "fuser", "screen -> world, target choice -> /vessel/tracks"),
-    GraphNode("gps_publisher", "vessel_track", "gps_publisher", "-> /vessel/fix (target), /vessel/fixes"),
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import VesselError
+from vessel_common.paths import repo_root
+from vessel_tools.graph_watcher import GraphWatcher
+from vessel_track.graph_nodes import (
+    GRAPH_NODES,
+    MAX_RESTARTS,
+    RECORDER,
+    STATEFUL_NODES,
+    GraphNode,
+    restart_delay_s,
+    sim_time_for_source,
 )
-RECORDER = GraphNode("recorder", "vessel_detect", "recorder", "records the graph's outputs to an MCAP bag")
-
-
-LIVE_SOURCE_PREFIXES = ("device:", "/dev/video", "rtsp://", "http://", "https://")
-
-
-def sim_time_for_source(source: str) -> bool:
-    """Whether a graph fed by camera ``source`` runs on ``/clock`` (``use_sim_time``): a recording, yes.
-
-    A replayed bag, video file or image folder carries its own time, which the camera publishes on ``/clock``:
-    with it every node's clock, its ``/diagnostics`` and a recording of the replay are in the replay's time, not
-    today's. A live device is in today's time. No source (the parameter file's) counts as live.
-    """
-    source = str(source).strip()
-    return bool(source) and not source.startswith(LIVE_SOURCE_PREFIXES)
-
-
-def camera_command_line(source: str, rate: str | float | None) -> list[str]:
-    """``-p`` assignments of the camera's per-run values (a ``-p`` wins over the parameter files)."""
-    args: list[str] = []
-    if str(source).strip():
-        args += ["-p", f"source:={source}"]
-    if rate is not None and str(rate).strip():
-        args += ["-p", f"rate:={float(rate)!r}"]
-    return args
-
-
-def repo_root() -> Path:
-    """The repository root: ``$VESSEL_ROOT`` (set by ./vessel) or found from this file's location."""
-    if os.environ.get("VESSEL_ROOT"):
-        return Path(os.environ["VESSEL_ROOT"])
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        if (parent / "vessel").is_file() and (parent / "src").is_dir():
-            return parent
-    return Path.cwd()
 
 
 def install_dir() -> Path:
@@ -229,75 +185,6 @@ class GraphRunner:
         return "\n".join(running.log_path.read_text(errors="replace").splitlines()[-lines:])
 
 
-class GraphWatcher:
-    """An in-process node that sees whether the graph is connected and counts frames leaving the fuser."""
-
-    def __init__(self):
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-
-        from vessel_calib.node_support import reliable_qos
-        from vessel_msgs.msg import VesselTrackArray
-
-        self._rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("demo_watcher", context=self.context)
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.tracks_received = 0
-        self.matched: dict[str, int] = {}   # topic -> subscriptions its publisher has matched (its /diagnostics)
-        self.node.create_subscription(VesselTrackArray, "/vessel/tracks", self._on_tracks, reliable_qos(100))
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable_qos(50))
-
-    def _on_tracks(self, _message) -> None:
-        self.tracks_received += 1
-
-    def _on_diagnostics(self, message) -> None:
-        from vessel_calib.node_support import matched_subscribers
-
-        self.matched.update(matched_subscribers(message))
-
-    def spin(self, seconds: float) -> None:
-        """Process callbacks for a while."""
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
-
-    def connected(self, with_camera: bool = True, with_recorder: bool = True, with_detector: bool = True) -> bool:
-        """Every link from the detector to the recorder is matched (so no frame is lost at the start).
-
-        Seen from each publisher's own side (the ``matched_subscribers`` its node reports on ``/diagnostics``):
-        that this watcher sees a subscriber does not mean the publisher has matched it yet, and a frame published
-        before then is lost. ``with_detector=False``: the links after the detector only (a self-paced source that
-        waits for its own readers is started once these are up).
-        """
-        wanted = {"/vessel/tracks/screen": 1 + with_recorder, "/vessel/tracks": 2 + with_recorder}
-        if with_detector:
-            wanted["/vessel/detections"] = 1 + with_recorder
-        if with_recorder:
-            wanted["/vessel/fix"] = 1
-        links = [self.node.count_subscribers("/camera/image_raw/compressed") >= 1 or not with_camera]
-        links += [self.matched.get(topic, 0) >= n for topic, n in wanted.items()]
-        return all(links)
-
-    def detector_connected(self) -> bool:
-        """The detector takes images and has matched every reader of its detections the graph knows of.
-
-        For a graph split across hosts: the camera and detector here, the tracking (and perhaps a recorder) on
-        another machine; a first reader matched is not enough, the tracker may not be that one.
-        """
-        readers = self.node.count_subscribers("/vessel/detections")  # every one the graph knows, here or there
-        return (self.node.count_subscribers("/camera/image_raw/compressed") >= 1 and readers >= 1
-                and self.matched.get("/vessel/detections", 0) >= readers)
-
-    def close(self) -> None:
-        """Shut the watcher's context down."""
-        self.node.destroy_node()
-        self._rclpy.try_shutdown(context=self.context)
-
-
 def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: float, where: str, **links) -> None:
     """Spin ``watcher`` until the graph is connected (``GraphWatcher.connected(**links)``), before the camera.
 
@@ -322,18 +209,6 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
             raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
         if time.monotonic() > deadline:
             raise VesselError(f"the graph did not connect within {timeout_s:g} s; {where}")
-
-
-STATEFUL_NODES = ("tracker", "fuser")
-"""Nodes that keep a ``state_file`` under ``--respawn``, so that a restarted one carries on from its tracks."""
-
-MAX_RESTARTS = 5
-"""A node restarted this many times is left down and the graph stops: it fails for a reason a restart cannot fix."""
-
-
-def restart_delay_s(restarts: int) -> float:
-    """Back-off before restart number ``restarts + 1``: at once the first time, then 0.5 s doubling to 8 s."""
-    return 0.0 if restarts == 0 else min(0.5 * 2.0 ** (restarts - 1), 8.0)
 
 
 def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) -> bool:
@@ -390,6 +265,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+@command_line_tool
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph until Ctrl-C (or the end of the source with --exit-at-end)."""
     args = parse_args(argv)
@@ -459,11 +336,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
         return 0 if all(code == 0 for code in statuses.values()) else 1
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
+    except VesselError:
         if runner is not None:  # never leave started nodes behind
             runner.stop()
-        return 2
+        raise
 
 
 if __name__ == "__main__":

@@ -21,19 +21,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset
-from vessel_calib.errors import VesselError
-from vessel_calib.paths import default_data_dir, parse_videos
-from vessel_track.fuser_settings import HAND_BOX_FUSION
-from vessel_track.graph import (
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import VesselError
+from vessel_common.paths import default_data_dir, parse_videos
+from vessel_tools.graph import (
     GRAPH_NODES,
     RECORDER,
     GraphNode,
     GraphRunner,
-    GraphWatcher,
     default_params_file,
     repo_root,
     wait_until_connected,
 )
+from vessel_tools.graph_watcher import GraphWatcher
+from vessel_track.fuser_settings import HAND_BOX_FUSION
 
 REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")
 OUTPUT_TOPICS = {
@@ -119,7 +120,7 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_l
         if not calib.is_file():
             raise VesselError(f"calibration file {calib} not found: run ./vessel calibrate or drop --calib")
         return calib
-    from vessel_calib import calibrate_node
+    from vessel_tools import calibrate as calibrate_tool
 
     sources = [dataset]
     shared = default_data_dir()
@@ -134,12 +135,12 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_l
             command = ["--data", str(source.path), "--videos", videos, "--label-passes", "all", "--out", str(target)]
             status = 1
             if water_level_file:
-                status = calibrate_node.main(command + ["--water-level", water_level_file])
+                status = calibrate_tool.main(command + ["--water-level", water_level_file])
                 if status != 0:
                     log(f"calibrating with the water level of {water_level_file} failed (see above): calibrating "
                         "without it")
             if status != 0:
-                status = calibrate_node.main(command)
+                status = calibrate_tool.main(command)
             if status != 0:
                 raise VesselError(f"calibration from {source.path} failed (status {status}); pass --calib FILE")
             return target
@@ -302,7 +303,7 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
 # --------------------------------------------------------------------------------------------------------------
 def readable_recording(run: VideoRun, log) -> bool:
     """Whether a video's recording can be read; a recorder that died is recovered (``bag_io.recover_bag``) first."""
-    from vessel_calib.errors import DataError
+    from vessel_common.errors import DataError
     from vessel_detect.bag_io import BagReader, recover_bag
 
     try:
@@ -428,93 +429,90 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     return path
 
 
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; 0 when it ran to the end, 2 on bad input, 1 when the graph failed."""
     args = parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    try:
-        data = args.data or default_data_dir()
-        if data is None:
-            raise VesselError("no dataset: pass --data DIR (a folder laid out like ../shared/aitas) or set "
-                              "VESSEL_DATA")
-        dataset = Dataset(data)
-        available = dataset.videos()
-        videos = parse_videos(args.videos) if args.videos else (
-            [v for v in VALIDATION_VIDEOS if v in available] or available)
-        absent = [v for v in videos if v not in available]
-        if absent:
-            raise VesselError(f"video(s) {absent} are not in {data} (it has {available})")
-        saved = None
-        if args.detections not in ("detector", "labels"):  # read first: a bad file fails before any work
-            from vessel_track.offline_data import csv_detections
+    data = args.data or default_data_dir()
+    if data is None:
+        raise VesselError("no dataset: pass --data DIR (a folder laid out like ../shared/aitas) or set "
+                          "VESSEL_DATA")
+    dataset = Dataset(data)
+    available = dataset.videos()
+    videos = parse_videos(args.videos) if args.videos else (
+        [v for v in VALIDATION_VIDEOS if v in available] or available)
+    absent = [v for v in videos if v not in available]
+    if absent:
+        raise VesselError(f"video(s) {absent} are not in {data} (it has {available})")
+    saved = None
+    if args.detections not in ("detector", "labels"):  # read first: a bad file fails before any work
+        from vessel_track.offline_data import csv_detections
 
-            saved = csv_detections(Path(args.detections), dataset, videos)
-        out = args.out or repo_root() / "out" / "demo"
-        out.mkdir(parents=True, exist_ok=True)
-        params_file = args.params or default_params_file()
-        if args.detector_params is not None:
-            params_file = merged_params_file(params_file, args.detector_params, out / "params.yaml")
-            log(f"parameters: {args.detector_params} over {args.params or default_params_file()} -> {params_file}")
-        from vessel_track.fuser_settings import load_fuser_settings
+        saved = csv_detections(Path(args.detections), dataset, videos)
+    out = args.out or repo_root() / "out" / "demo"
+    out.mkdir(parents=True, exist_ok=True)
+    params_file = args.params or default_params_file()
+    if args.detector_params is not None:
+        params_file = merged_params_file(params_file, args.detector_params, out / "params.yaml")
+        log(f"parameters: {args.detector_params} over {args.params or default_params_file()} -> {params_file}")
+    from vessel_track.fuser_settings import load_fuser_settings
 
-        water_level = load_fuser_settings(params_file).water_level
-        if water_level.file:
-            water_level.load()  # a missing or broken file fails here, before any work
-        calibration = prepare_calibration(dataset, args.calib, out, water_level.file)
-        fuser_overrides = tide_overrides(calibration, params_file)
-        params = [params_file, calibration]
-        shared = default_data_dir()
-        is_shared = shared is not None and Path(data).resolve() == shared.resolve()
-        bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
-        bags = prepare_bags(dataset, videos, bag_root)
-        if args.detections == "labels":
-            frames_per_video = {v: write_label_detections(dataset, v, out / "labels" / f"video_{v}.csv")
-                                for v in videos}
-            unlabelled = [v for v, count in frames_per_video.items() if count == 0]
-            if unlabelled:
-                raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
-        else:
-            frames_per_video = {v: len(dataset.frames([v])) for v in videos}
-        saved_csvs = {v: out / "saved_detections" / f"video_{v}.csv" for v in videos} if saved is not None else {}
-        for v, path in saved_csvs.items():
-            write_saved_detections(saved, v, path)
-        runs = []
-        for video in videos:
-            label_csv = out / "labels" / f"video_{video}.csv" if args.detections == "labels" else None
-            recording = out / "recording" / f"video_{video}"
-            if recording.exists():
-                import shutil
+    water_level = load_fuser_settings(params_file).water_level
+    if water_level.file:
+        water_level.load()  # a missing or broken file fails here, before any work
+    calibration = prepare_calibration(dataset, args.calib, out, water_level.file)
+    fuser_overrides = tide_overrides(calibration, params_file)
+    params = [params_file, calibration]
+    shared = default_data_dir()
+    is_shared = shared is not None and Path(data).resolve() == shared.resolve()
+    bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
+    bags = prepare_bags(dataset, videos, bag_root)
+    if args.detections == "labels":
+        frames_per_video = {v: write_label_detections(dataset, v, out / "labels" / f"video_{v}.csv")
+                            for v in videos}
+        unlabelled = [v for v, count in frames_per_video.items() if count == 0]
+        if unlabelled:
+            raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
+    else:
+        frames_per_video = {v: len(dataset.frames([v])) for v in videos}
+    saved_csvs = {v: out / "saved_detections" / f"video_{v}.csv" for v in videos} if saved is not None else {}
+    for v, path in saved_csvs.items():
+        write_saved_detections(saved, v, path)
+    runs = []
+    for video in videos:
+        label_csv = out / "labels" / f"video_{video}.csv" if args.detections == "labels" else None
+        recording = out / "recording" / f"video_{video}"
+        if recording.exists():
+            import shutil
 
-                shutil.rmtree(recording)
-            recording.parent.mkdir(parents=True, exist_ok=True)
-            log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
-            run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
-                            frames_per_video[video], saved_csvs.get(video), fuser_overrides)
-            log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
-                f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
-            runs.append(run)
-        runs = [run for run in runs if readable_recording(run, log)]
-        if not runs:
-            raise VesselError("no video left a readable recording: see the logs in " + str(out / "logs"))
-        predictions, tracks = export_recordings(runs, out)
-        from vessel_track.demo_report import write_report
+            shutil.rmtree(recording)
+        recording.parent.mkdir(parents=True, exist_ok=True)
+        log(f"video {video}: {frames_per_video[video]} frames from {bags[video]}")
+        run = run_video(video, bags[video], recording, params, args, label_csv, out / "logs" / f"video_{video}",
+                        frames_per_video[video], saved_csvs.get(video), fuser_overrides)
+        log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
+            f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
+        runs.append(run)
+    runs = [run for run in runs if readable_recording(run, log)]
+    if not runs:
+        raise VesselError("no video left a readable recording: see the logs in " + str(out / "logs"))
+    predictions, tracks = export_recordings(runs, out)
+    from vessel_tools.demo_report import write_report
 
-        offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
-        summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
-                               "labels" if args.detections == "labels" else "frames")
-        (out / "summary.json").write_text(json.dumps(summary, indent=2))
-        log(f"outputs in {out}: predictions.csv, predictions_offline.csv, fixes.csv, tracks.csv, summary.json, "
-            "plots, recording/")
-        failures = [f"video {run.video}: {', '.join(run.failed_nodes)}" for run in runs if run.failed_nodes]
-        failures += [f"video {video}: no readable recording" for video in videos
-                     if video not in {run.video for run in runs}]
-        if failures:
-            log("these failed, and the figures above lack what they would have given: " + "; ".join(failures))
-            return 1
-        return 0
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
+    summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
+                           "labels" if args.detections == "labels" else "frames")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    log(f"outputs in {out}: predictions.csv, predictions_offline.csv, fixes.csv, tracks.csv, summary.json, "
+        "plots, recording/")
+    failures = [f"video {run.video}: {', '.join(run.failed_nodes)}" for run in runs if run.failed_nodes]
+    failures += [f"video {video}: no readable recording" for video in videos
+                 if video not in {run.video for run in runs}]
+    if failures:
+        log("these failed, and the figures above lack what they would have given: " + "; ".join(failures))
+        return 1
+    return 0
 
 
 if __name__ == "__main__":

@@ -27,21 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.paths import default_data_dir
-from vessel_track.bench import (
-    FIX_TOPIC,
-    IMAGE_TOPIC,
-    GraphError,
-    GraphSession,
-    _domain_id,
-    log,
-    machine_info,
-    node_pid,
-    read_proc,
-    summary_ms,
-)
-from vessel_track.graph import default_calibration_file, default_params_file
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import default_data_dir
+from vessel_tools.bench import GraphError, GraphSession, _domain_id, log, machine_info, summary_ms
+from vessel_tools.graph import default_calibration_file, default_params_file
+from vessel_tools.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
+from vessel_tools.proc_monitor import node_pid, read_proc
 
 DEFAULT_FPS = 25.0
 DEFAULT_MINUTES = 10.0
@@ -216,17 +208,11 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: 0 done, 2 bad input or a graph that failed, 130 interrupted."""
-    try:
-        args = parse_args(argv)
-        result = run(args)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except (VesselError, GraphError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    args = parse_args(argv)
+    result = run(args)
     print(format_report(result))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -28,7 +28,6 @@ import math
 import os
 import platform
 import random
-import struct
 import sys
 import tempfile
 import time
@@ -39,23 +38,26 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_track.graph import (
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError, VesselError
+from vessel_tools.graph import (
     GRAPH_NODES,
     GraphRunner,
     default_calibration_file,
     default_params_file,
     repo_root,
 )
-
-IMAGE_TOPIC = "/camera/image_raw/compressed"
-DETECTIONS_TOPIC = "/vessel/detections"
-SCREEN_TOPIC = "/vessel/tracks/screen"
-TRACKS_TOPIC = "/vessel/tracks"
-FIX_TOPIC = "/vessel/fix"
-DIAGNOSTICS_TOPIC = "/diagnostics"
-CHAIN = (IMAGE_TOPIC, DETECTIONS_TOPIC, SCREEN_TOPIC, TRACKS_TOPIC, FIX_TOPIC)
-"""The topics one frame passes, in order; every message carries the image's header stamp."""
+from vessel_tools.graph_watcher import (
+    CHAIN,
+    DETECTIONS_TOPIC,
+    FIX_TOPIC,
+    IMAGE_TOPIC,
+    SCREEN_TOPIC,
+    TRACKS_TOPIC,
+    ArrivalLog,
+    GraphWatcher,
+)
+from vessel_tools.proc_monitor import NodeUsage, ProcMonitor, node_pid
 
 STAGES = (
     ("camera -> detector", IMAGE_TOPIC, DETECTIONS_TOPIC),
@@ -78,10 +80,9 @@ CAMERA_ACK_TIMEOUT_S = 10.0
 """The camera sends the next frame after this long without detections (a lost frame); counted, reported."""
 CONNECT_TIMEOUT_S = 90.0
 END_SETTLE_S = 3.0
-CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
 
-class GraphError(Exception):
+class GraphError(VesselError):
     """A node of the graph died or the graph delivered no frame; the message holds the node's log tail."""
 
 
@@ -107,93 +108,6 @@ def summary_ms(values_s: Sequence[float]) -> dict[str, float | int]:
         "max": float(values.max()),
         "n": int(values.size),
     }
-
-
-# --------------------------------------------------------------------------------------------------------------
-# /proc: CPU time and memory of a process
-# --------------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ProcSample:
-    """CPU seconds (user + system, all threads) and memory of one process at one wall time."""
-
-    wall_s: float
-    cpu_s: float
-    rss_kb: int
-    hwm_kb: int
-
-
-def read_proc(pid: int) -> ProcSample | None:
-    """Sample ``/proc/<pid>/stat`` and ``/proc/<pid>/status``; None when the process is gone."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        status = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
-        return None
-    # The command name (field 2) may hold spaces and parentheses: the fields after its closing one are fixed.
-    fields_after_name = stat[stat.rindex(")") + 2 :].split()
-    utime, stime = int(fields_after_name[11]), int(fields_after_name[12])  # fields 14 and 15 of proc(5)
-    memory = {}
-    for line in status.splitlines():
-        key, _, value = line.partition(":")
-        if key in ("VmRSS", "VmHWM"):
-            memory[key] = int(value.split()[0])
-    return ProcSample(time.monotonic(), (utime + stime) / CLOCK_TICKS_PER_S, memory.get("VmRSS", 0),
-                      memory.get("VmHWM", 0))
-
-
-def process_cmdline(pid: int) -> list[str]:
-    """The command line of a process (empty when it is gone)."""
-    try:
-        raw = Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return []
-    return [part.decode(errors="replace") for part in raw.split(b"\0") if part]
-
-
-def node_pid(pid: int, executable: str) -> int:
-    """The pid of the process running ``executable``.
-
-    That is ``pid`` itself for the project's console scripts (the shebang makes the kernel run the interpreter
-    in that process); behind a wrapper (a shell script), the child that runs it.
-    """
-    if any(Path(arg).name == executable for arg in process_cmdline(pid)[:2]):
-        return pid
-    try:
-        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
-    except OSError:
-        return pid
-    for child in children:
-        if any(Path(arg).name == executable for arg in process_cmdline(int(child))[:2]):
-            return int(child)
-    return pid
-
-
-@dataclass
-class NodeUsage:
-    """CPU and memory of one node process over the measured frames and its whole life."""
-
-    name: str
-    pid: int
-    cpu_s_total: float
-    cpu_s_measured: float
-    cpu_percent: float
-    peak_mb: float
-    rss_mb: float
-
-    def as_dict(self) -> dict[str, float | int]:
-        """JSON-ready figures."""
-        return {"pid": self.pid, "cpu_s_total": self.cpu_s_total, "cpu_s_measured": self.cpu_s_measured,
-                "cpu_percent": self.cpu_percent, "peak_mb": self.peak_mb, "rss_mb": self.rss_mb}
-
-
-def node_usage(name: str, pid: int, start: ProcSample | None, end: ProcSample | None) -> NodeUsage | None:
-    """CPU % between two samples (100 % = one core busy) and the peak memory at the end sample."""
-    if end is None:
-        return None
-    measured = end.cpu_s - start.cpu_s if start is not None else float("nan")
-    wall = end.wall_s - start.wall_s if start is not None else float("nan")
-    percent = 100.0 * measured / wall if start is not None and wall > 0 else float("nan")
-    return NodeUsage(name, pid, end.cpu_s, measured, percent, end.hwm_kb / 1024.0, end.rss_kb / 1024.0)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -248,7 +162,7 @@ def build_core_detector(parameters: dict[str, object]) -> CoreDetector:
     then calls ``detector_params.build_detector(values, camera)``; so does this.
     """
     from vessel_calib.camera_model import CameraModel
-    from vessel_calib.node_support import DEFAULT_CAMERA_PARAMETERS
+    from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
     from vessel_detect.detector_params import ALL_PARAMS, build_detector, merge_values
 
     declared = {spec.name for spec in ALL_PARAMS}
@@ -271,7 +185,7 @@ def build_core_detector(parameters: dict[str, object]) -> CoreDetector:
 # --------------------------------------------------------------------------------------------------------------
 def prepare_bag(video: int, data: Path | None, bags: Path | None) -> Path:
     """The bag folder of ``video``; built from the dataset when missing."""
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     shared = default_data_dir()
     is_shared = data is None or (shared is not None and Path(data).resolve() == shared.resolve())
@@ -358,162 +272,6 @@ def run_core(core: CoreDetector, jpegs: Sequence[bytes], times: CoreTimes | None
         times.decode_s.append(decoded - started)
         times.detect_s.append(done - decoded)
     return times
-
-
-# --------------------------------------------------------------------------------------------------------------
-# 2. The graph, watched from this process
-# --------------------------------------------------------------------------------------------------------------
-def header_stamp_ns(cdr: bytes) -> int:
-    """The header stamp of a serialised message whose first field is a ``std_msgs/Header`` (CDR)."""
-    little = len(cdr) > 1 and cdr[1] & 1
-    sec, nanosec = struct.unpack_from("<iI" if little else ">iI", cdr, 4)
-    return sec * 1_000_000_000 + nanosec
-
-
-@dataclass(frozen=True)
-class Arrival:
-    """One message of one frame on one topic: header stamp, its occurrence, and when it went and came (ns).
-
-    ``published_ns`` is the DDS source timestamp (the publisher's clock, CLOCK_REALTIME), ``received_ns`` the
-    watcher's reception by the middleware (before any Python queueing); both fall back to the callback time
-    when the middleware gives none. ``occurrence`` counts earlier messages with the same stamp on the topic, so
-    frames whose stamps repeat (a loop without restamping) are matched in order.
-    """
-
-    stamp_ns: int
-    occurrence: int
-    published_ns: int
-    received_ns: int
-
-    @property
-    def key(self) -> tuple[int, int]:
-        """Which frame: (occurrence, stamp), in the order the camera sent them."""
-        return (self.occurrence, self.stamp_ns)
-
-
-class ArrivalLog:
-    """Arrivals per topic, keyed by frame."""
-
-    def __init__(self, topics: Sequence[str]):
-        self.by_topic: dict[str, dict[tuple[int, int], Arrival]] = {topic: {} for topic in topics}
-        self._occurrences: dict[str, dict[int, int]] = {topic: {} for topic in topics}
-
-    def add(self, topic: str, stamp_ns: int, published_ns: int, received_ns: int) -> Arrival:
-        """Record one message."""
-        seen = self._occurrences[topic]
-        occurrence = seen.get(stamp_ns, 0)
-        seen[stamp_ns] = occurrence + 1
-        arrival = Arrival(stamp_ns, occurrence, published_ns, received_ns)
-        self.by_topic[topic][arrival.key] = arrival
-        return arrival
-
-    def count(self, topic: str) -> int:
-        """Messages seen on a topic."""
-        return len(self.by_topic[topic])
-
-    def frames(self) -> list[tuple[int, int]]:
-        """Every frame seen on any topic, in the order the camera sent them."""
-        keys: set[tuple[int, int]] = set()
-        for arrivals in self.by_topic.values():
-            keys.update(arrivals)
-        return sorted(keys)
-
-
-def _message_info_times(info) -> tuple[int, int]:
-    now = time.time_ns()
-    if not isinstance(info, dict):
-        return now, now
-    return int(info.get("source_timestamp") or now), int(info.get("received_timestamp") or now)
-
-
-class BenchWatcher:
-    """An in-process node in its own context: notes each frame's messages along the graph and the diagnostics."""
-
-    def __init__(self, domain_id: int):
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-        from rclpy.signals import SignalHandlerOptions
-        from sensor_msgs.msg import CompressedImage, NavSatFix
-
-        from vessel_calib.node_support import SENSOR_DATA_QOS, reliable_qos
-        from vessel_msgs.msg import Detection2DArray, VesselTrackArray
-
-        self._rclpy = rclpy
-        self.context = Context()
-        # No rclpy signal handlers: Ctrl-C must reach this program as KeyboardInterrupt, so that every node is
-        # stopped on the way out (rclpy's handler would only shut this context down and swallow it).
-        rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node("bench_watcher", context=self.context)
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.log = ArrivalLog(CHAIN)
-        self.fixes_with_position = 0
-        self.diagnostics: dict[str, dict[str, str]] = {}
-        self.matched: dict[str, int] = {}   # topic -> subscriptions its publisher has matched (its /diagnostics)
-        # Serialised messages (raw=True): the watcher reads only the header stamp, so a 200 kB image costs it
-        # no deserialisation while the graph runs.
-        self.subscriptions = {
-            IMAGE_TOPIC: self.node.create_subscription(
-                CompressedImage, IMAGE_TOPIC, self._raw_callback(IMAGE_TOPIC), SENSOR_DATA_QOS, raw=True),
-            DETECTIONS_TOPIC: self.node.create_subscription(
-                Detection2DArray, DETECTIONS_TOPIC, self._raw_callback(DETECTIONS_TOPIC), reliable_qos(100),
-                raw=True),
-            SCREEN_TOPIC: self.node.create_subscription(
-                VesselTrackArray, SCREEN_TOPIC, self._raw_callback(SCREEN_TOPIC), reliable_qos(100), raw=True),
-            TRACKS_TOPIC: self.node.create_subscription(
-                VesselTrackArray, TRACKS_TOPIC, self._raw_callback(TRACKS_TOPIC), reliable_qos(100), raw=True),
-            FIX_TOPIC: self.node.create_subscription(NavSatFix, FIX_TOPIC, self._on_fix, reliable_qos(100)),
-        }
-        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, reliable_qos(50))
-
-    def _raw_callback(self, topic: str):
-        def on_message(cdr, info) -> None:
-            published, received = _message_info_times(info)
-            self.log.add(topic, header_stamp_ns(cdr), published, received)
-
-        return on_message
-
-    def _on_fix(self, fix, info) -> None:
-        published, received = _message_info_times(info)
-        stamp = fix.header.stamp
-        self.log.add(FIX_TOPIC, stamp.sec * 1_000_000_000 + stamp.nanosec, published, received)
-        if fix.status.status >= 0 and math.isfinite(fix.latitude) and math.isfinite(fix.longitude):
-            self.fixes_with_position += 1
-
-    def _on_diagnostics(self, array) -> None:
-        from vessel_calib.node_support import matched_subscribers
-
-        self.matched.update(matched_subscribers(array))
-        for status in array.status:
-            values = {kv.key: kv.value for kv in status.values}
-            values["_message"] = status.message
-            self.diagnostics[status.name] = values
-
-    def spin(self, seconds: float) -> None:
-        """Process callbacks for a while."""
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
-
-    def connected(self) -> bool:
-        """Every link from the detector to this watcher is there (the camera is started after)."""
-        count = self.node.count_subscribers
-        links = [
-            count(IMAGE_TOPIC) >= 2,  # detector + watcher
-            count(DETECTIONS_TOPIC) >= 2,  # tracker + watcher
-            count(SCREEN_TOPIC) >= 2,  # fuser + watcher
-            count(TRACKS_TOPIC) >= 2,  # gps_publisher + watcher
-        ]
-        links += [self.subscriptions[topic].get_publisher_count() >= 1 for topic in CHAIN[1:]]
-        # ... and matched from the publishers' side (what they report on /diagnostics), so no frame is lost.
-        links += [self.matched.get(topic, 0) >= 2 for topic in (DETECTIONS_TOPIC, SCREEN_TOPIC, TRACKS_TOPIC)]
-        return all(links)
-
-    def close(self) -> None:
-        """Shut the watcher's context down."""
-        self.node.destroy_node()
-        self._rclpy.try_shutdown(context=self.context)
 
 
 @dataclass
@@ -613,89 +371,6 @@ def graph_figures(run: GraphRun) -> dict[str, object]:
     return figures
 
 
-class ProcMonitor:
-    """CPU time and memory of the node processes and of this one, from /proc, over the measured frames.
-
-    A measuring window opens when a round's measured frames start and closes after its last one; the CPU time
-    of every window adds up. Each process keeps its latest sample (one that has exited keeps the one before);
-    a process replaced under the same name (the camera, once per round) adds its totals to its successor's.
-    """
-
-    OWN = "(bench watcher)"
-
-    def __init__(self):
-        self.pids: dict[str, int] = {}
-        self.last: dict[str, ProcSample] = {}
-        self._window_start: dict[str, ProcSample | None] | None = None
-        self._measured_cpu: dict[str, float] = {}
-        self._measured_wall: dict[str, float] = {}
-        self._retired_cpu: dict[str, float] = {}
-        self._retired_hwm: dict[str, int] = {}
-        self._last_sample = 0.0
-
-    def add(self, name: str, pid: int) -> None:
-        """Watch a process (replacing, and keeping the totals of, an earlier one of the same name)."""
-        previous = self.last.pop(name, None)
-        if previous is not None:
-            self._retired_cpu[name] = self._retired_cpu.get(name, 0.0) + previous.cpu_s
-            self._retired_hwm[name] = max(self._retired_hwm.get(name, 0), previous.hwm_kb)
-        self.pids[name] = pid
-
-    def _all_pids(self) -> dict[str, int]:
-        return {**self.pids, self.OWN: os.getpid()}
-
-    @property
-    def window_open(self) -> bool:
-        """A measuring window is open."""
-        return self._window_start is not None
-
-    def open_window(self) -> None:
-        """Measured frames start now."""
-        self._window_start = {name: read_proc(pid) for name, pid in self._all_pids().items()}
-        self.sample()
-
-    def sample(self, min_interval_s: float = 0.0) -> None:
-        """A new sample of every process still there (at most every ``min_interval_s``)."""
-        if time.monotonic() - self._last_sample < min_interval_s:
-            return
-        self._last_sample = time.monotonic()
-        for name, pid in self._all_pids().items():
-            value = read_proc(pid)
-            if value is not None:
-                self.last[name] = value
-
-    def close_window(self) -> None:
-        """The measured frames of this round are done: add the window's CPU time and wall time."""
-        if self._window_start is None:
-            return
-        self.sample()
-        for name, start in self._window_start.items():
-            end = self.last.get(name)
-            if start is not None and end is not None:
-                self._measured_cpu[name] = self._measured_cpu.get(name, 0.0) + end.cpu_s - start.cpu_s
-                self._measured_wall[name] = self._measured_wall.get(name, 0.0) + end.wall_s - start.wall_s
-        self._window_start = None
-
-    def usage(self) -> list[NodeUsage]:
-        """Per process: CPU over the measured frames, total CPU and peak memory."""
-        result = []
-        for name, pid in self._all_pids().items():
-            last = self.last.get(name)
-            if last is None:
-                continue
-            cpu = self._measured_cpu.get(name, float("nan"))
-            wall = self._measured_wall.get(name, float("nan"))
-            result.append(NodeUsage(
-                name, pid,
-                cpu_s_total=self._retired_cpu.get(name, 0.0) + last.cpu_s,
-                cpu_s_measured=cpu,
-                cpu_percent=100.0 * cpu / wall if wall > 0 else float("nan"),
-                peak_mb=max(self._retired_hwm.get(name, 0), last.hwm_kb) / 1024.0,
-                rss_mb=last.rss_kb / 1024.0,
-            ))
-        return result
-
-
 class GraphSession:
     """The graph as separate processes, started once; the camera replays the bag once per round.
 
@@ -714,21 +389,21 @@ class GraphSession:
         self.frame_timeout_s = frame_timeout_s
         self.nodes = {node.name: node for node in GRAPH_NODES}
         self.runner = GraphRunner(params_files, log_dir=log_dir)
-        self.watcher: BenchWatcher | None = None
+        self.watcher: GraphWatcher | None = None
         self.monitor = ProcMonitor()
         self.requested = 0
         self.statuses: dict[str, int] = {}
 
     def start(self) -> None:
         """Start the nodes but the camera, consumers first, and wait until everything is connected."""
-        self.watcher = BenchWatcher(self.domain_id)
+        self.watcher = GraphWatcher(self.domain_id, log_frames=True)
         for name in ("gps_publisher", "fuser", "tracker", "detector"):
             started = self.runner.start(self.nodes[name])
             self.monitor.add(name, node_pid(started.process.pid, self.nodes[name].executable))
         log(f"started {', '.join(self.monitor.pids)}; waiting for the graph to connect (ROS_DOMAIN_ID "
             f"{self.domain_id}, logs in {self.log_dir})")
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
-        while not self.watcher.connected():
+        while not self.watcher.connected(with_recorder=False):
             self.watcher.spin(0.1)
             self._raise_if_failed()
             if time.monotonic() > deadline:
@@ -1000,7 +675,7 @@ def _domain_id() -> int:
 
 def run(args: argparse.Namespace) -> dict:
     """The whole benchmark; the result dictionary (also what ``--out`` writes)."""
-    from vessel_calib.paths import parse_videos
+    from vessel_common.paths import parse_videos
 
     videos = parse_videos(args.videos)
     if len(videos) != 1:
@@ -1051,6 +726,13 @@ def run(args: argparse.Namespace) -> dict:
     for part in core_rounds:
         times = times + part
 
+    return _result(args, video, bag, params_files, rounds, core, times, core_rounds, graph_run, machine, windows,
+                   domain_id, log_dir)
+
+
+def _result(args, video, bag, params_files, rounds, core, times, core_rounds, graph_run, machine, windows,
+            domain_id, log_dir) -> dict:
+    """The figures of a finished run, with warnings for frames lost and nodes that did not exit cleanly."""
     graph = graph_figures(graph_run)
     machine.update({
         "load_average_after": list(os.getloadavg()),
@@ -1066,21 +748,7 @@ def run(args: argparse.Namespace) -> dict:
     for figures in nodes.values():
         frames_out = graph["frames_measured"]
         figures["cpu_ms_per_frame"] = 1000.0 * figures["cpu_s_measured"] / frames_out if frames_out else math.nan
-    warnings = []
-    if graph["frames_measured"] < args.frames:
-        warnings.append(f"{args.frames - graph['frames_measured']} of {args.frames} measured frames did not come "
-                        "out of the fuser (see the camera's ack timeouts in diagnostics)")
-    counters = {
-        "camera_ack_timeouts": graph_run.diagnostics.get("camera", {}).get("count.ack_timeouts"),
-        "detector_dropped_frames": graph_run.diagnostics.get("detector", {}).get("count.dropped_frames"),
-    }
-    graph.update({k: int(v) for k, v in counters.items() if v is not None and str(v).isdigit()})
-    if graph.get("camera_ack_timeouts"):
-        warnings.append(f"the camera waited {CAMERA_ACK_TIMEOUT_S:g} s in vain for detections "
-                        f"{graph['camera_ack_timeouts']} time(s): frames were lost on the way to the detector")
-    bad_exits = {name: status for name, status in graph_run.statuses.items() if status != 0}
-    if bad_exits:
-        warnings.append(f"node(s) exited with a non-zero status on SIGINT: {bad_exits}; logs in {log_dir}")
+    warnings = _warnings(args, graph, graph_run, log_dir)
     latency = graph.get("latency_fix_ms", summary_ms([]))
     return {
         "graph_fps": graph_fps,
@@ -1114,20 +782,35 @@ def run(args: argparse.Namespace) -> dict:
     }
 
 
+def _warnings(args, graph: dict, graph_run, log_dir: Path) -> list[str]:
+    """What makes a run's figures doubtful: lost frames, ack time-outs, unclean exits (counters go into ``graph``)."""
+    warnings = []
+    if graph["frames_measured"] < args.frames:
+        warnings.append(f"{args.frames - graph['frames_measured']} of {args.frames} measured frames did not come "
+                        "out of the fuser (see the camera's ack timeouts in diagnostics)")
+    counters = {
+        "camera_ack_timeouts": graph_run.diagnostics.get("camera", {}).get("count.ack_timeouts"),
+        "detector_dropped_frames": graph_run.diagnostics.get("detector", {}).get("count.dropped_frames"),
+    }
+    graph.update({k: int(v) for k, v in counters.items() if v is not None and str(v).isdigit()})
+    if graph.get("camera_ack_timeouts"):
+        warnings.append(f"the camera waited {CAMERA_ACK_TIMEOUT_S:g} s in vain for detections "
+                        f"{graph['camera_ack_timeouts']} time(s): frames were lost on the way to the detector")
+    bad_exits = {name: status for name, status in graph_run.statuses.items() if status != 0}
+    if bad_exits:
+        warnings.append(f"node(s) exited with a non-zero status on SIGINT: {bad_exits}; logs in {log_dir}")
+    return warnings
+
+
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; 0 when it ran, 2 on bad input (missing bag, model, data), 1 when the graph failed."""
     args = parse_args(argv)
     try:
         result = run(args)
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
     except GraphError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:  # every node was stopped on the way out (run_graph's finally)
-        print("error: interrupted; every node was stopped", file=sys.stderr)
-        return 130
     print(format_table(result))
     if args.out is not None:
         write_json(args.out, result)

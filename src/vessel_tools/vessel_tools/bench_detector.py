@@ -31,8 +31,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.paths import repo_file
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError
+from vessel_common.paths import repo_file
 from vessel_detect.detector_params import build_detector, load_params_files, open_model
 
 MODES = ("full", "band", "tiled")
@@ -86,7 +87,7 @@ def _ros_available() -> str | None:
 
 def detector_executable() -> Path:
     """The installed console script of the detector node."""
-    from vessel_calib.paths import repo_root
+    from vessel_common.paths import repo_root
 
     return repo_root() / "ros2_ws" / "install" / "vessel_detect" / "lib" / "vessel_detect" / "detector"
 
@@ -196,7 +197,7 @@ class NodeDriver:
 def run(args: argparse.Namespace) -> dict:
     """Measure and print; return the figures."""
     from vessel_calib.dataset import Dataset
-    from vessel_calib.paths import default_data_dir
+    from vessel_common.paths import default_data_dir
 
     data = Path(args.data) if args.data else default_data_dir()
     if data is None:
@@ -300,7 +301,7 @@ def compare_with_baseline(values, camera, model, baseline_files: list[str], jpeg
 
 def build_parser() -> argparse.ArgumentParser:
     """Command-line interface."""
-    parser = argparse.ArgumentParser(prog="vessel bench detector", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="./vessel bench detector", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
     parser.add_argument("--params", default=repo_file("config/aitas.yaml"),
                         help="parameter YAML of the default (detector: block; default config/aitas.yaml)")
@@ -321,14 +322,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
     """Entry point: exit 0, or 2 with one ``error:`` line."""
     args = build_parser().parse_args(argv)
-    try:
-        result = run(args)
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    result = run(args)
     if args.out:
         from vessel_calib.params import atomic_write_text
 

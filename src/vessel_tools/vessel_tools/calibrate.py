@@ -1,6 +1,6 @@
 """``calibrate``: fit the camera model from labelled (screen, GPS) pairs and write the ROS parameter YAML.
 
-Offline tool (an executable of the package so ``ros2 run vessel_calib calibrate`` finds it); it does not need a
+Offline tool (an executable of the package so ``ros2 run vessel_tools calibrate`` finds it); it does not need a
 ROS graph. Inputs, one of:
 
 * ``--data DIR --videos 7-12 [--pairs 11 --seed N]``: a folder laid out like ``../shared/aitas``; pairs are the
@@ -19,7 +19,7 @@ Output: ``--out FILE.yaml`` (``/**: ros__parameters: camera: {...}``, atomic), a
 (``--picture``, default next to the YAML). ``--evaluate-on 13-17`` prints validation figures, ``--draws 20``
 the spread over random draws of ``--pairs`` training pairs (the paper's protocol).
 
-ROS style works too: ``ros2 run vessel_calib calibrate --ros-args -p data:=DIR -p out:=FILE.yaml``. With no
+ROS style works too: ``ros2 run vessel_tools calibrate --ros-args -p data:=DIR -p out:=FILE.yaml``. With no
 input at all it calibrates the default data set (``$VESSEL_DATA`` or ``../shared/aitas``) into
 ``out/calibration/``, or says what it needs and exits 0. Bad input: ``error: ...`` on stderr, exit 2, nothing
 written. Ctrl-C: ``interrupted, nothing written``, exit 0.
@@ -34,12 +34,13 @@ import os
 import shlex
 import signal
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, box_points
-from vessel_calib.errors import CalibrationError, DataError, VesselError
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import CalibrationError, DataError
 
 if TYPE_CHECKING:
     from vessel_calib.calibration import CalibrationResult, FitOptions
@@ -367,24 +368,30 @@ def _fit_options(args) -> FitOptions:
 
 
 # --------------------------------------------------------------------------- main
+@dataclass
+class _Pairs:
+    """The (screen, GPS) pairs a calibration is fitted to, and where they came from."""
+
+    screen: Any
+    gps: Any
+    stamps: Any
+    source: str
+    name: str
+    image_size: tuple[int, int]
+    center: tuple[float, float]
+    notes: list[str] = field(default_factory=list)
+    videos: list[int] | None = None
+    association: Any = None
+    picture_frame: Any = None
+
+
 def run(args) -> int:
     """Do the work for parsed ``args``; raises VesselError for bad input."""
-    import numpy as np
-
     from vessel_calib import geodesy
-    from vessel_calib.calibration import (
-        FEW_PAIRS,
-        MIN_PAIRS_TO_WRITE,
-        calibrate,
-        degrees_of_freedom,
-        evaluate,
-        leave_one_pair_out_errors,
-        study_draws,
-    )
+    from vessel_calib.calibration import calibrate
     from vessel_calib.dataset import Dataset
-    from vessel_calib.paths import default_data_dir, parse_videos, repo_root
+    from vessel_common.paths import default_data_dir
 
-    ds = None
     data_dir = args.data
     if not data_dir and not args.pairs_csv and not args.video:
         found = default_data_dir()
@@ -394,161 +401,208 @@ def run(args) -> int:
             return 0
         data_dir = str(found)
         print(f"calibrate: no input given; calibrating the default data set {found}")
-    if data_dir:
-        ds = Dataset(data_dir)
-
-    size_default = ds.image_size if ds is not None else (1280, 720)
-    image_size = _parse_size(args.image_size, size_default)
-    center = _parse_center(args.center, image_size) if args.center or ds is None else ds.center
+    ds = Dataset(data_dir) if data_dir else None
     camera_lat = args.camera_lat if args.camera_lat is not None else (ds.camera_lat if ds is not None else None)
     camera_lon = args.camera_lon if args.camera_lon is not None else (ds.camera_lon if ds is not None else None)
     if camera_lat is None or camera_lon is None:
         raise CalibrationError("give the camera position: --camera-lat and --camera-lon (WGS-84 degrees)")
     geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (--camera-lat/--camera-lon)")
-
     if not 0.0 <= args.box_anchor <= 1.0:  # NaN fails too
         raise CalibrationError(f"--box-anchor (camera.box_anchor) must be a number in [0, 1] (0 box top, 0.5 centre, "
                                f"1 bottom), got {args.box_anchor}")
-    notes: list[str] = []
-    videos = None
-    association = None
-    picture_frame = None
     water_level = None
     if args.water_level:
         from vessel_calib.water_level import load_water_level
 
         water_level = load_water_level(args.water_level)
+    pairs = _collect_pairs(args, ds, camera_lat, camera_lon, water_level)
+    available = len(pairs.screen)
+    all_screen, all_gps = pairs.screen, pairs.gps
+    _draw_pairs(args, pairs)
+    options = _fit_options(args)
+    levels = _pair_levels(args, pairs, water_level)
+    result = calibrate(pairs.screen, pairs.gps, camera_lat, camera_lon, pairs.image_size, pairs.center, options,
+                       box_anchor=args.box_anchor, water_levels=levels)
+    _report_fit(args, pairs, available, result, options, levels, camera_lat, camera_lon)
+    eval_pairs = _evaluate(args, ds, result, water_level, all_screen, all_gps, camera_lat, camera_lon, pairs, options)
+    _write(args, pairs, result, ds, eval_pairs)
+    return 0
+
+
+def _collect_pairs(args, ds, camera_lat: float, camera_lon: float, water_level) -> _Pairs:
+    """The pairs from a video file, a pairs CSV or a data folder (its labels, detections or both)."""
+    import numpy as np
+
+    from vessel_common.paths import parse_videos
+
+    image_size = _parse_size(args.image_size, ds.image_size if ds is not None else (1280, 720))
+    center = _parse_center(args.center, image_size) if args.center or ds is None else ds.center
     if args.video:
         if args.data or args.pairs_csv:
             raise CalibrationError("--video replaces --data and --pairs-csv: give one of them")
         association, picture_frame, image_size = _search_video(args, camera_lat, camera_lon, args.center,
                                                                water_level)
-        center = _parse_center(args.center, image_size)
         screen, gps, stamps = association.pairs(args.box_anchor)
-        source = f"video {args.video} without labels ({association.associated} frames associated)"
-        name = Path(args.video).stem
-    elif args.pairs_csv:
+        return _Pairs(screen, gps, stamps, f"video {args.video} without labels ({association.associated} frames "
+                      "associated)", Path(args.video).stem, image_size, _parse_center(args.center, image_size),
+                      association=association, picture_frame=picture_frame)
+    if args.pairs_csv:
         screen, gps, notes, stamps = read_pairs_csv(args.pairs_csv, args.gps, args.max_gap_s, args.box_anchor)
-        source = f"pairs {args.pairs_csv}"
-        name = Path(args.pairs_csv).stem
-    else:
-        spec = args.videos or DEFAULT_TRAIN_VIDEOS
-        videos = parse_videos(spec)
-        pairs_from = _pairs_source(args.pairs_from, ds)
-        name = ds.path.name
-        screen = gps = stamps = np.zeros((0, 2))
-        if pairs_from in ("labels", "both"):
-            screen, gps, stamps = ds.calibration_pairs(videos, anchor=args.box_anchor,
-                                                       label_passes=args.label_passes, with_stamps=True)
-            source = f"{ds.path} videos {spec} ({args.label_passes} labels)"
-            if len(screen) == 0:
-                raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {spec}"
-                                + ("" if pairs_from == "labels" else "; use --from detections"))
-        if pairs_from in ("detections", "both"):
-            association = _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center, water_level)
-            found_screen, found_gps, found_stamps, keys = association.pairs(args.box_anchor, with_keys=True)
-            if pairs_from == "both":
-                labelled = {(lab.video, lab.frame) for lab in ds.labels(videos, args.label_passes == "primary")
-                            if lab.gps_ok}
-                extra = np.array([key not in labelled for key in keys], dtype=bool)
-                screen = np.vstack([screen, found_screen[extra]])
-                gps = np.vstack([gps, found_gps[extra]])
-                stamps = np.concatenate([stamps, found_stamps[extra]])
-                source += f" and {int(extra.sum())} frames without a label associated from detections"
-            else:
-                screen, gps, stamps = found_screen, found_gps, found_stamps
-                source = (f"{ds.path} videos {spec} without labels ({association.associated} frames associated "
-                          "from detections)")
-    available = len(screen)
-    all_screen, all_gps = screen, gps
-    if args.pairs is not None:
-        if args.pairs < MIN_PAIRS_TO_WRITE:
-            raise CalibrationError(f"--pairs must be at least {MIN_PAIRS_TO_WRITE}, got {args.pairs}: 4 pairs fit the "
-                                   "homography exactly, so no error of the calibration could be measured")
-        if args.pairs > len(screen):
-            raise CalibrationError(f"--pairs {args.pairs} but only {len(screen)} pairs are available")
-        idx = np.sort(np.random.default_rng(args.seed).choice(len(screen), size=args.pairs, replace=False))
-        screen, gps, stamps = screen[idx], gps[idx], stamps[idx]
-        source += f", random draw of {args.pairs} (seed {args.seed})"
+        return _Pairs(screen, gps, stamps, f"pairs {args.pairs_csv}", Path(args.pairs_csv).stem, image_size, center,
+                      notes)
+    spec = args.videos or DEFAULT_TRAIN_VIDEOS
+    videos = parse_videos(spec)
+    pairs_from = _pairs_source(args.pairs_from, ds)
+    pairs = _Pairs(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)), "", ds.path.name, image_size, center,
+                   videos=videos)
+    if pairs_from in ("labels", "both"):
+        pairs.screen, pairs.gps, pairs.stamps = ds.calibration_pairs(videos, anchor=args.box_anchor,
+                                                                     label_passes=args.label_passes, with_stamps=True)
+        pairs.source = f"{ds.path} videos {spec} ({args.label_passes} labels)"
+        if len(pairs.screen) == 0:
+            raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {spec}"
+                            + ("" if pairs_from == "labels" else "; use --from detections"))
+    if pairs_from in ("detections", "both"):
+        association = _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center, water_level)
+        pairs.association = association
+        found_screen, found_gps, found_stamps, keys = association.pairs(args.box_anchor, with_keys=True)
+        if pairs_from == "both":
+            labelled = {(lab.video, lab.frame) for lab in ds.labels(videos, args.label_passes == "primary")
+                        if lab.gps_ok}
+            extra = np.array([key not in labelled for key in keys], dtype=bool)
+            pairs.screen = np.vstack([pairs.screen, found_screen[extra]])
+            pairs.gps = np.vstack([pairs.gps, found_gps[extra]])
+            pairs.stamps = np.concatenate([pairs.stamps, found_stamps[extra]])
+            pairs.source += f" and {int(extra.sum())} frames without a label associated from detections"
+        else:
+            pairs.screen, pairs.gps, pairs.stamps = found_screen, found_gps, found_stamps
+            pairs.source = (f"{ds.path} videos {spec} without labels ({association.associated} frames associated "
+                            "from detections)")
+    return pairs
 
-    options = _fit_options(args)
+
+def _draw_pairs(args, pairs: _Pairs) -> None:
+    """``--pairs N --seed S``: keep a random draw of N pairs (the paper's protocol)."""
+    import numpy as np
+
+    from vessel_calib.calibration import MIN_PAIRS_TO_WRITE
+
+    if args.pairs is None:
+        return
+    if args.pairs < MIN_PAIRS_TO_WRITE:
+        raise CalibrationError(f"--pairs must be at least {MIN_PAIRS_TO_WRITE}, got {args.pairs}: 4 pairs fit the "
+                               "homography exactly, so no error of the calibration could be measured")
+    if args.pairs > len(pairs.screen):
+        raise CalibrationError(f"--pairs {args.pairs} but only {len(pairs.screen)} pairs are available")
+    idx = np.sort(np.random.default_rng(args.seed).choice(len(pairs.screen), size=args.pairs, replace=False))
+    pairs.screen, pairs.gps, pairs.stamps = pairs.screen[idx], pairs.gps[idx], pairs.stamps[idx]
+    pairs.source += f", random draw of {args.pairs} (seed {args.seed})"
+
+
+def _pair_levels(args, pairs: _Pairs, water_level):
+    """The water level at each pair (None without ``--water-level``); refuses too few pairs to measure a fit."""
+    import numpy as np
+
+    from vessel_calib.calibration import MIN_PAIRS_TO_WRITE
+
     levels = None
     if water_level is not None:
-        if not np.all(np.isfinite(stamps)):
+        if not np.all(np.isfinite(pairs.stamps)):
             raise CalibrationError("--water-level needs the time of every pair: give the pairs CSV a time column t "
                                    "(epoch seconds or ISO-8601 UTC)")
-        levels = _levels_at(water_level, stamps, "pair(s)")
-        source += f", water level from {args.water_level}"
-    if len(screen) < MIN_PAIRS_TO_WRITE:
+        levels = _levels_at(water_level, pairs.stamps, "pair(s)")
+        pairs.source += f", water level from {args.water_level}"
+    if len(pairs.screen) < MIN_PAIRS_TO_WRITE:
         raise CalibrationError(
-            f"{len(screen)} pairs: a homography fitted to 4 pairs passes through them exactly (0 px, 0 m whatever "
-            f"the labels), so nothing says how wrong it is; give at least {MIN_PAIRS_TO_WRITE} pairs (more than 8 "
-            "for a calibration to rely on)")
-    result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor=args.box_anchor,
-                       water_levels=levels)
+            f"{len(pairs.screen)} pairs: a homography fitted to 4 pairs passes through them exactly (0 px, 0 m "
+            f"whatever the labels), so nothing says how wrong it is; give at least {MIN_PAIRS_TO_WRITE} pairs (more "
+            "than 8 for a calibration to rely on)")
+    return levels
 
-    print(f"calibrate: fitted on {source}: {len(screen)} of {available} pairs", flush=True)
-    for note in notes:
+
+def _report_fit(args, pairs: _Pairs, available: int, result, options, levels, camera_lat, camera_lon) -> None:
+    """The fit's report; with few pairs, each one back-projected by a fit of the others."""
+    import numpy as np
+
+    from vessel_calib.calibration import FEW_PAIRS, degrees_of_freedom, leave_one_pair_out_errors
+
+    screen = pairs.screen
+    print(f"calibrate: fitted on {pairs.source}: {len(screen)} of {available} pairs", flush=True)
+    for note in pairs.notes:
         print(f"  note: {note}")
-    if association is not None:
-        print("\n".join(association.report_lines()), flush=True)
+    if pairs.association is not None:
+        print("\n".join(pairs.association.report_lines()), flush=True)
     print("\n".join(result.report_lines()), flush=True)
     if len(screen) < FEW_PAIRS:
         dof = degrees_of_freedom(len(screen), result.options.fit_k1 and result.options.k1_fixed is None)
-        held_out = leave_one_pair_out_errors(screen, gps, camera_lat, camera_lon, image_size, center, options,
-                                             args.box_anchor)
+        held_out = leave_one_pair_out_errors(screen, pairs.gps, camera_lat, camera_lon, pairs.image_size,
+                                             pairs.center, options, args.box_anchor)
         finite = held_out[np.isfinite(held_out)]
         figure = (f"median {np.median(finite):.2f} m, max {np.max(finite):.2f} m over {finite.size} pairs"
                   if finite.size else "no pair could be held out")
         print(f"  warning: only {len(screen)} pairs, {dof} degree(s) of freedom left: the fit's own errors above "
               f"understate; each pair back-projected by a fit of the others: {figure}. Label more pairs.",
               flush=True)
-    if water_level is not None:
+    if levels is not None:
         geometry = result.model.pinhole()
         print(f"  water level {result.model.water_level_m:.3f} m (pairs {levels.min():.3f} to {levels.max():.3f} m); "
               f"camera {geometry.height_m:.2f} m above it, focal {geometry.focal_px:.0f} px, nadir "
               f"({geometry.nadir_xy[0]:.1f}, {geometry.nadir_xy[1]:.1f}) m", flush=True)
 
-    eval_pairs = None
-    if ds is not None and (args.evaluate_on or args.draws):
-        eval_videos = parse_videos(args.evaluate_on or DEFAULT_EVAL_VIDEOS)
-        *eval_pairs, eval_stamps = ds.calibration_pairs(eval_videos, anchor=args.box_anchor, with_stamps=True)
-        if len(eval_pairs[0]) == 0:
-            raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {eval_videos}")
-        spec = args.evaluate_on or DEFAULT_EVAL_VIDEOS
-        eval_levels = None if water_level is None else water_level.level_at(eval_stamps)
-        if eval_levels is not None and not np.all(np.isfinite(eval_levels)):
-            raise CalibrationError(f"videos {spec} fall outside the water-level file {water_level.source}")
-        print("\n".join(evaluate(result.model, *eval_pairs, eval_levels).lines(
-            f"evaluation on videos {spec} (box points {args.box_anchor:g} of the way down)")))
-        try:
-            paper = ds.camera_model()
-        except DataError:
-            paper = None
-        if paper is not None:
-            fig = evaluate(paper, *ds.calibration_pairs(eval_videos, anchor=paper.box_anchor))
-            print("\n".join(fig.lines(f"paper calibration (camera.json, H[0][0] sign corrected) on videos {spec}")))
-            print(f"  heading {paper.heading_deg:.2f} deg (paper: 76.5)")
-        if args.draws:
-            n_pairs = args.pairs or 11
-            study = study_draws(all_screen, all_gps, *eval_pairs, camera_lat, camera_lon, n_pairs, args.draws,
-                                args.seed, image_size, center, options)
-            print("\n".join(study.lines()))
-    elif args.evaluate_on or args.draws:
-        raise CalibrationError("--evaluate-on and --draws need a data folder (--data DIR)")
 
-    out = Path(args.out) if args.out else repo_root() / "out" / "calibration" / f"{name}_camera.yaml"
+def _evaluate(args, ds, result, water_level, all_screen, all_gps, camera_lat, camera_lon, pairs: _Pairs, options):
+    """``--evaluate-on`` and ``--draws``: figures on held-out labelled videos; their pairs (None without)."""
+    import numpy as np
+
+    from vessel_calib.calibration import evaluate, study_draws
+    from vessel_common.paths import parse_videos
+
+    if ds is None:
+        if args.evaluate_on or args.draws:
+            raise CalibrationError("--evaluate-on and --draws need a data folder (--data DIR)")
+        return None
+    if not (args.evaluate_on or args.draws):
+        return None
+    eval_videos = parse_videos(args.evaluate_on or DEFAULT_EVAL_VIDEOS)
+    *eval_pairs, eval_stamps = ds.calibration_pairs(eval_videos, anchor=args.box_anchor, with_stamps=True)
+    if len(eval_pairs[0]) == 0:
+        raise DataError(f"{ds.path}: no labelled pairs with gps_ok=1 in videos {eval_videos}")
+    spec = args.evaluate_on or DEFAULT_EVAL_VIDEOS
+    eval_levels = None if water_level is None else water_level.level_at(eval_stamps)
+    if eval_levels is not None and not np.all(np.isfinite(eval_levels)):
+        raise CalibrationError(f"videos {spec} fall outside the water-level file {water_level.source}")
+    print("\n".join(evaluate(result.model, *eval_pairs, eval_levels).lines(
+        f"evaluation on videos {spec} (box points {args.box_anchor:g} of the way down)")))
+    try:
+        paper = ds.camera_model()
+    except DataError:
+        paper = None
+    if paper is not None:
+        fig = evaluate(paper, *ds.calibration_pairs(eval_videos, anchor=paper.box_anchor))
+        print("\n".join(fig.lines(f"paper calibration (camera.json, H[0][0] sign corrected) on videos {spec}")))
+        print(f"  heading {paper.heading_deg:.2f} deg (paper: 76.5)")
+    if args.draws:
+        study = study_draws(all_screen, all_gps, *eval_pairs, camera_lat, camera_lon, args.pairs or 11, args.draws,
+                            args.seed, pairs.image_size, pairs.center, options)
+        print("\n".join(study.lines()))
+    return eval_pairs
+
+
+def _write(args, pairs: _Pairs, result, ds, eval_pairs) -> None:
+    """The calibration YAML and its picture, atomically."""
+    from vessel_common.paths import repo_root
+
+    out = Path(args.out) if args.out else repo_root() / "out" / "calibration" / f"{pairs.name}_camera.yaml"
     if out.suffix.lower() not in (".yaml", ".yml"):
         raise CalibrationError(f"--out must be a .yaml file, got {out}")
     picture = None if args.no_picture else Path(args.picture) if args.picture else out.with_suffix(".png")
-    header = _yaml_header(result, source, sys.argv)
+    header = _yaml_header(result, pairs.source, sys.argv)
     overlay = {}
-    if association is not None:
-        overlay = {"boxes": association.boxes(), "track_gps": association.track_gps(),
+    if pairs.association is not None:
+        overlay = {"boxes": pairs.association.boxes(), "track_gps": pairs.association.track_gps(),
                    "pair_label": "associated detections (fit pairs)"}
-    _commit(result, out, picture, header, args.frame or picture_frame or _picture_frame(ds, videos), eval_pairs,
-            source, overlay)
-    return 0
+    frame = args.frame or pairs.picture_frame or _picture_frame(ds, pairs.videos)
+    _commit(result, out, picture, header, frame, eval_pairs, pairs.source, overlay)
 
 
 def _search_options(args):
@@ -655,7 +709,7 @@ def _frame_boxes_module():
 def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
     f = result.figures
     return "\n".join([
-        "Camera calibration written by vessel_calib calibrate (load with --params-file).",
+        "Camera calibration written by vessel_tools calibrate (load with --params-file).",
         f"command: calibrate {' '.join(shlex.quote(a) for a in argv[1:])}",
         f"fitted on: {source}",
         f"pairs {f.pairs}: reprojection RMSE {f.reproj_rmse_px:.2f} px, median {f.reproj_median_px:.2f} px; "
@@ -708,6 +762,7 @@ def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pa
         print(f"wrote {path}")
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit status (0 ok or interrupted, 2 bad input)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -732,15 +787,12 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print("interrupted, nothing written", file=sys.stderr)
         return 0
-    except VesselError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
     except SystemExit as exc:  # argparse --help / errors
         return int(exc.code or 0) if isinstance(exc.code, int) else 2
 
 
 def _run_as_script() -> None:
-    """``python -m vessel_calib.calibrate_node``: exit with main's status.
+    """``python -m vessel_tools.calibrate``: exit with main's status.
 
     After a KeyboardInterrupt caught inside main, CPython's ``-m`` runner still reports the run as killed by
     SIGINT (status 130); ``os._exit`` makes the interrupt exit 0 as promised (files are already closed).

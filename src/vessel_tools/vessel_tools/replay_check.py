@@ -3,7 +3,7 @@
 Prints the frames in the bag, the frames received with their original stamps, whether /clock followed the
 stamps, and the wall time against the bag's duration / rate. Needs the built workspace.
 
-    python -m vessel_detect.replay_check bags/video_13 --rate 10
+    ./vessel replay-check bags/video_13 --rate 10
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from vessel_calib.errors import VesselError
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import VesselError
 from vessel_detect import bag_io
 
 
@@ -28,7 +29,7 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import CompressedImage
 
-    from vessel_calib.node_support import image_qos_profile
+    from vessel_common.node_support import image_qos_profile
 
     with bag_io.BagReader(bag) as reader:
         expected = [bag_io.sec_to_ns(t) for t, _ in reader.images()]
@@ -54,7 +55,7 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
         Clock, "/clock", lambda m: clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
     )
-    from vessel_calib.paths import repo_root
+    from vessel_common.paths import repo_root
 
     exe = repo_root() / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -94,23 +95,20 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     }
 
 
+@command_line_tool
 def main(argv: list[str] | None = None) -> int:
     """Command line: print the figures of one or more replays."""
-    parser = argparse.ArgumentParser(prog="replay_check", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="./vessel replay-check", description=__doc__.splitlines()[0])
     parser.add_argument("bags", type=Path, nargs="+")
     parser.add_argument("--rate", type=float, action="append", help="rate factor(s) (default 10)")
     parser.add_argument("--image-qos", default="sensor_data", choices=["sensor_data", "reliable"])
     args = parser.parse_args(argv)
-    try:
-        for bag in args.bags:
-            for rate in args.rate or [10.0]:
-                figures = check(bag, rate, args.image_qos)
-                print(" ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items()
-                               if k != "camera_summary"))
-                print(f"  camera: {figures['camera_summary']}")
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    for bag in args.bags:
+        for rate in args.rate or [10.0]:
+            figures = check(bag, rate, args.image_qos)
+            print(" ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items()
+                           if k != "camera_summary"))
+            print(f"  camera: {figures['camera_summary']}")
     return 0
 
 

@@ -7,17 +7,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import struct
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import yaml
 
-from vessel_track import bench
+from vessel_tools import bench, graph_watcher, proc_monitor
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 
@@ -33,51 +30,6 @@ def test_summary_ms_gives_median_and_p95_in_milliseconds():
     assert summary["min"] == pytest.approx(1.0) and summary["max"] == pytest.approx(100.0)
     empty = bench.summary_ms([float("nan")])
     assert empty["n"] == 0 and math.isnan(empty["p50"])
-
-
-def test_read_proc_counts_cpu_time_and_memory_of_a_process():
-    before = bench.read_proc(os.getpid())
-    deadline = time.process_time() + 0.3
-    while time.process_time() < deadline:
-        pass
-    after = bench.read_proc(os.getpid())
-    assert before is not None and after is not None
-    assert after.cpu_s - before.cpu_s >= 0.2
-    assert after.hwm_kb >= after.rss_kb > 1000
-    assert bench.read_proc(2**22 + 12345) is None  # above pid_max: no such process
-
-
-def _wait_for(predicate, timeout_s=10.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return predicate()
-
-
-def test_node_pid_is_the_console_script_process_or_the_child_of_a_wrapper(tmp_path):
-    script = tmp_path / "fake_node"
-    script.write_text(f"#!{sys.executable}\nimport time\ntime.sleep(30)\n")
-    script.chmod(0o755)
-    wrapper = tmp_path / "wrapper.sh"
-    wrapper.write_text(f"#!/bin/sh\n{script}\n")  # no exec: the node runs as the shell's child
-    wrapper.chmod(0o755)
-    direct = subprocess.Popen([str(script)])
-    wrapped = subprocess.Popen([str(wrapper)])
-    try:
-        assert bench.node_pid(direct.pid, "fake_node") == direct.pid
-        assert Path(bench.process_cmdline(direct.pid)[1]).name == "fake_node"
-        assert _wait_for(lambda: bench.node_pid(wrapped.pid, "fake_node") != wrapped.pid)
-        child = bench.node_pid(wrapped.pid, "fake_node")
-        assert Path(bench.process_cmdline(child)[1]).name == "fake_node"
-    finally:
-        child = bench.node_pid(wrapped.pid, "fake_node")
-        if child != wrapped.pid:
-            os.kill(child, 9)
-        for process in (direct, wrapped):
-            process.kill()
-            process.wait()
 
 
 def test_node_parameters_follow_the_ros_rules_of_parameter_files(tmp_path):
@@ -97,20 +49,13 @@ def test_node_parameters_follow_the_ros_rules_of_parameter_files(tmp_path):
                       "camera.H": [1, 2, 3]}
 
 
-def test_header_stamp_is_read_from_serialised_messages_of_either_byte_order():
-    little = b"\x00\x01\x00\x00" + struct.pack("<iI", 1601495752, 884000000) + b"rest"
-    big = b"\x00\x00\x00\x00" + struct.pack(">iI", 1601495752, 884000000) + b"rest"
-    assert bench.header_stamp_ns(little) == 1601495752_884000000
-    assert bench.header_stamp_ns(big) == 1601495752_884000000
-
-
 def _synthetic_run(stamps_s, detect_s, warmup):
     """Arrivals of frames published 1 s apart; the detector takes detect_s[i], later stages fixed times."""
-    log = bench.ArrivalLog(bench.CHAIN)
-    offsets = {bench.SCREEN_TOPIC: 0.02, bench.TRACKS_TOPIC: 0.05, bench.FIX_TOPIC: 0.06}
+    log = graph_watcher.ArrivalLog(graph_watcher.CHAIN)
+    offsets = {graph_watcher.SCREEN_TOPIC: 0.02, graph_watcher.TRACKS_TOPIC: 0.05, graph_watcher.FIX_TOPIC: 0.06}
     for i, (stamp, detect) in enumerate(zip(stamps_s, detect_s, strict=True)):
         sent = 100.0 + i
-        times = {bench.IMAGE_TOPIC: sent, bench.DETECTIONS_TOPIC: sent + detect}
+        times = {graph_watcher.IMAGE_TOPIC: sent, graph_watcher.DETECTIONS_TOPIC: sent + detect}
         times.update({topic: sent + detect + offset for topic, offset in offsets.items()})
         for topic, published in times.items():
             log.add(topic, int(stamp * 1e9), int(published * 1e9), int((published + 0.001) * 1e9))
@@ -199,7 +144,7 @@ def test_missing_model_is_one_error_line(tmp_path, capsys, ros_env, data_dir):
 
 
 def _run_bench(args, env, timeout=150):
-    return subprocess.run([sys.executable, "-m", "vessel_track.bench", *args], env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "vessel_tools.bench", *args], env=env, capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -220,7 +165,7 @@ def test_a_node_that_dies_stops_the_benchmark_with_its_log_tail(tmp_path, ros_en
 def _processes_mentioning(text: str) -> list[int]:
     """Pids of running processes with ``text`` on their command line."""
     return [int(entry.name) for entry in Path("/proc").iterdir()
-            if entry.name.isdigit() and text in " ".join(bench.process_cmdline(int(entry.name)))]
+            if entry.name.isdigit() and text in " ".join(proc_monitor.process_cmdline(int(entry.name)))]
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -237,7 +182,7 @@ def test_benchmark_of_a_few_frames_reports_every_figure(tmp_path, ros_env, model
         assert isinstance(figures[key], float) and math.isfinite(figures[key]) and figures[key] > 0, key
     assert figures["latency_ms_p95"] >= figures["latency_ms_p50"]
     assert figures["graph"]["frames_measured"] == 6
-    assert figures["graph"]["counts"][bench.TRACKS_TOPIC] == 8  # two rounds of 1 warm-up + 3 frames
+    assert figures["graph"]["counts"][graph_watcher.TRACKS_TOPIC] == 8  # two rounds of 1 warm-up + 3 frames
     assert len(figures["graph"]["graph_fps_per_round"]) == 2 and len(figures["detector_core"]["fps_per_round"]) == 2
     assert figures["detector_core"]["frames"] == 6
     for name in ("camera", "detector", "tracker", "fuser", "gps_publisher"):
@@ -251,5 +196,5 @@ def test_benchmark_of_a_few_frames_reports_every_figure(tmp_path, ros_env, model
     assert machine["cores"] >= 1 and machine["onnxruntime_threads"] >= 1 and machine["detector_mode"]
     assert "graph / core" in result.stdout and "detector core" in result.stdout
     stopped = [name for name, node in figures["nodes"].items()
-               if name in figures["node_exit_statuses"] and bench.read_proc(node["pid"]) is None]
+               if name in figures["node_exit_statuses"] and proc_monitor.read_proc(node["pid"]) is None]
     assert sorted(stopped) == sorted(figures["node_exit_statuses"])

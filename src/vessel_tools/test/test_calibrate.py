@@ -9,9 +9,10 @@ import pytest
 import yaml
 from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 
-from vessel_calib import calibrate_node, geodesy
+from vessel_calib import geodesy
 from vessel_calib.calibration import evaluate
 from vessel_calib.params import load_camera_yaml
+from vessel_tools import calibrate as calibrate_node
 
 SRC = str(Path(__file__).resolve().parents[1])
 REPO = Path(__file__).resolve().parents[3]
@@ -187,7 +188,7 @@ def test_ros_params_file_block(tmp_path, pairs_csv, capsys):
 
 
 def test_only_ros_args_without_data_says_what_it_needs(monkeypatch, capsys):
-    import vessel_calib.paths as paths_module
+    import vessel_common.paths as paths_module
 
     monkeypatch.setattr(paths_module, "default_data_dir", lambda: None)
     status, stdout, err = run_cli(["--ros-args"], capsys)
@@ -224,7 +225,7 @@ def test_interrupt_while_drawing_the_picture_leaves_nothing(tmp_path, pairs_csv,
 def test_sigint_during_a_real_run_exits_zero_and_writes_nothing(dataset, tmp_path):
     out = tmp_path / "cal.yaml"
     env = {"PYTHONPATH": SRC, "PATH": "/usr/bin:/bin", "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "vessel_calib.calibrate_node", "--data", str(dataset.path),
+    proc = subprocess.Popen([sys.executable, "-m", "vessel_tools.calibrate", "--data", str(dataset.path),
                              "--out", str(out), "--evaluate-on", "13-17", "--draws", "200"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     # wait until it is fitting (its first report line), then interrupt

@@ -11,19 +11,21 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 
 def repo_root() -> Path:
-    """The project root (the folder holding ``src/``), found from this file's location or the working directory."""
+    """The project root (the folder holding ``src/``): ``$VESSEL_ROOT`` (set by ./vessel), else found from here."""
+    if os.environ.get("VESSEL_ROOT"):
+        return Path(os.environ["VESSEL_ROOT"])
     here = Path(__file__).resolve()
     for parent in here.parents:
-        if (parent / "src" / "vessel_calib").is_dir() and (parent / "pyproject.toml").exists():
+        if (parent / "src" / "vessel_common").is_dir() and (parent / "pyproject.toml").exists():
             return parent
     # Installed (non-symlink) package: fall back to the working directory or its parents.
     cwd = Path.cwd().resolve()
     for parent in (cwd, *cwd.parents):
-        if (parent / "src" / "vessel_calib").is_dir():
+        if (parent / "src" / "vessel_common").is_dir():
             return parent
     return cwd
 

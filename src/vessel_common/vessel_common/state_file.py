@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vessel_calib.errors import DataError
+from vessel_common.errors import DataError
 
 FORMAT = "vessel_state/1"
 

@@ -27,7 +27,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,9 +35,11 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.errors import DataError, VesselError
-from vessel_calib.paths import default_data_dir
-from vessel_track.bench import _domain_id, log, machine_info
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError, VesselError
+from vessel_common.paths import default_data_dir
+from vessel_tools.bench import _domain_id, log, machine_info
+from vessel_tools.graph_watcher import GraphWatcher
 
 RESTARTABLE = ("tracker", "fuser", "gps_publisher", "detector")
 FIRST_AFTER = 10
@@ -84,57 +85,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-class FixProbe:
-    """An in-process subscriber of ``/vessel/fix`` that files each fix of the current run."""
-
-    def __init__(self, domain_id: int):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from sensor_msgs.msg import NavSatFix, NavSatStatus
-
-        from vessel_calib.node_support import reliable_qos
-
-        self._fix_ok = NavSatStatus.STATUS_FIX
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("bench_restart_probe", context=self.context)
-        self.run = Run()
-        self._lock = threading.Lock()
-        self.node.create_subscription(NavSatFix, "/vessel/fix", self._on_fix, reliable_qos(100))
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self._thread.start()
-
-    def _on_fix(self, msg) -> None:
-        if msg.status.status < self._fix_ok:
-            return
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        with self._lock:
-            self.run.fixes[stamp] = (msg.latitude, msg.longitude)
-            self.run.arrivals.append((time.monotonic(), stamp))
-
-    def count(self) -> int:
-        """Fixes of the current run so far."""
-        with self._lock:
-            return len(self.run.arrivals)
-
-    def new_run(self) -> Run:
-        """File the next fixes into a new run."""
-        with self._lock:
-            self.run = Run()
-            return self.run
-
-    def close(self) -> None:
-        """Stop spinning and shut the probe's context down."""
-        import rclpy
-
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
 def _bag(args: argparse.Namespace, work: Path) -> Path:
     if args.source is not None:
         if not args.source.exists():
@@ -148,35 +98,49 @@ def _bag(args: argparse.Namespace, work: Path) -> Path:
     return work / "bags" / f"video_{args.video}"
 
 
-def _graph_run(probe: FixProbe, bag: Path, rate: float, log_dir: Path, env: dict[str, str], kill: str | None,
+def _graph_run(watcher: GraphWatcher, bag: Path, rate: float, log_dir: Path, env: dict[str, str], kill: str | None,
                kill_after: int, cold: bool) -> Run:
     """One run of ``./vessel graph --respawn`` to the end of the bag, killing ``kill`` after ``kill_after`` fixes."""
-    run = probe.new_run()
-    command = [sys.executable, "-m", "vessel_track.graph", "--source", str(bag), "--rate", f"{rate:g}",
+    watcher.fixes.clear()
+    run = Run()
+    log_dir.mkdir(parents=True, exist_ok=True)
+    command = [sys.executable, "-m", "vessel_tools.graph", "--source", str(bag), "--rate", f"{rate:g}",
                "--exit-at-end", "--respawn", "--log-dir", str(log_dir)] + (["--no-state-files"] if cold else [])
-    graph = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                             start_new_session=True)
-    try:
-        if kill is not None:
-            deadline = time.monotonic() + 180.0
-            while probe.count() < kill_after:
-                if graph.poll() is not None or time.monotonic() > deadline:
-                    raise VesselError(f"the graph gave {probe.count()} fixes, not {kill_after}, before the "
-                                      f"kill; logs in {log_dir}")
-                time.sleep(0.02)
-            marker = str(log_dir / f"{kill}.overrides.yaml")
-            pids = subprocess.run(["pgrep", "-f", marker], capture_output=True, text=True).stdout.split()
-            if len(pids) != 1:
-                raise VesselError(f"found {len(pids)} processes of {kill} (marker {marker})")
-            run.killed_at = time.monotonic()
-            os.kill(int(pids[0]), signal.SIGKILL)
-        _, run.stderr = graph.communicate(timeout=600)
-    finally:
-        if graph.poll() is None:
-            graph.send_signal(signal.SIGINT)
-            graph.wait(timeout=30)
-    time.sleep(0.5)  # the last fixes in flight
+    with open(log_dir / "graph.stderr", "w") as stderr:
+        graph = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr, text=True,
+                                 start_new_session=True)
+        try:
+            deadline = time.monotonic() + 600.0
+            while graph.poll() is None:
+                if time.monotonic() > deadline:
+                    raise VesselError(f"the graph did not end within 10 minutes; logs in {log_dir}")
+                watcher.spin(0.05)
+                if kill is not None and run.killed_at is None and len(watcher.fixes) >= kill_after:
+                    run.killed_at = _kill(kill, log_dir)
+            if kill is not None and run.killed_at is None:
+                raise VesselError(f"the graph gave {len(watcher.fixes)} fixes, not {kill_after}, before it ended; "
+                                  f"logs in {log_dir}")
+        finally:
+            if graph.poll() is None:
+                graph.send_signal(signal.SIGINT)
+                graph.wait(timeout=30)
+    watcher.spin(0.5)  # the last fixes in flight
+    run.stderr = (log_dir / "graph.stderr").read_text(errors="replace")
+    for received, stamp, lat, lon in watcher.fixes:
+        run.fixes[stamp] = (lat, lon)
+        run.arrivals.append((received, stamp))
     return run
+
+
+def _kill(node: str, log_dir: Path) -> float:
+    """SIGKILL the node the graph runner started with ``log_dir``; when (monotonic s)."""
+    marker = str(log_dir / f"{node}.overrides.yaml")
+    pids = subprocess.run(["pgrep", "-f", marker], capture_output=True, text=True).stdout.split()
+    if len(pids) != 1:
+        raise VesselError(f"found {len(pids)} processes of {node} (marker {marker})")
+    killed_at = time.monotonic()
+    os.kill(int(pids[0]), signal.SIGKILL)
+    return killed_at
 
 
 def _truth_errors(args: argparse.Namespace, run: Run) -> dict[int, float]:
@@ -224,10 +188,10 @@ def run(args: argparse.Namespace) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     bag = _bag(args, work)
-    probe = FixProbe(domain_id)
+    watcher = GraphWatcher(domain_id)
     try:
         log(f"uninterrupted run of {bag} at rate {args.rate:g}")
-        reference = _graph_run(probe, bag, args.rate, work / "reference", env, None, 0, False)
+        reference = _graph_run(watcher, bag, args.rate, work / "reference", env, None, 0, False)
         if len(reference.fixes) <= args.kill_after:
             raise VesselError(f"the uninterrupted run gave {len(reference.fixes)} fixes: nothing left to measure "
                               f"after --kill-after {args.kill_after}; logs in {work / 'reference'}")
@@ -239,11 +203,11 @@ def run(args: argparse.Namespace) -> dict:
                     mode = "cold" if cold else "state file"
                     log(f"kill -9 {node} after {args.kill_after} fixes ({mode}, run {repeat + 1} of {args.repeat})")
                     folder = work / f"{node}_{'cold' if cold else 'state'}_{repeat + 1}"
-                    one = _graph_run(probe, bag, args.rate, folder, env, node, args.kill_after, cold)
+                    one = _graph_run(watcher, bag, args.rate, folder, env, node, args.kill_after, cold)
                     results.append(_figures(reference, one, node, cold, _truth_errors(args, one), reference_errors))
                     log(json.dumps(results[-1]))
     finally:
-        probe.close()
+        watcher.close()
     return {"bag": str(bag), "rate": args.rate, "kill_after": args.kill_after,
             "reference_fixes": len(reference.fixes), "runs": results, "logs": str(work), "machine": machine_info()}
 
@@ -269,17 +233,11 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
+@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; print the table (and write JSON with --out)."""
     args = parse_args(argv)
-    try:
-        result = run(args)
-    except VesselError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    result = run(args)
     print(format_report(result))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

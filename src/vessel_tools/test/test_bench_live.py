@@ -10,8 +10,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from vessel_track import bench_live
-from vessel_track.bench import ArrivalLog
+from vessel_tools import bench_live
+from vessel_tools.graph_watcher import ArrivalLog
 
 
 def test_counters_are_read_from_the_named_node_only():
@@ -52,7 +52,7 @@ def test_bad_arguments_are_one_line_errors(bad, capsys):
 
 def test_a_short_live_stream_reports_every_figure(ros_env, data_dir, model_path, tmp_path):
     out = tmp_path / "live.json"
-    done = subprocess.run([sys.executable, "-m", "vessel_track.bench_live", "--minutes", "0.25", "--warmup-s", "8",
+    done = subprocess.run([sys.executable, "-m", "vessel_tools.bench_live", "--minutes", "0.25", "--warmup-s", "8",
                            "--out", str(out), "--log-dir", str(tmp_path / "logs")], env=ros_env, capture_output=True,
                           text=True, timeout=240)
     assert done.returncode == 0, done.stderr[-3000:]

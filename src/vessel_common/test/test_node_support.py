@@ -7,7 +7,7 @@ def test_health_report_survives_a_watched_publisher_destroyed_without_unwatch(ro
     from rclpy.node import Node
     from std_msgs.msg import String
 
-    from vessel_calib.node_support import MATCHED_SUBSCRIBERS, NodeHealth
+    from vessel_common.node_support import MATCHED_SUBSCRIBERS, NodeHealth
 
     node = Node("health_probe", context=ros_context)
     try:
@@ -28,7 +28,7 @@ def test_release_publisher_takes_a_lifecycle_publisher_out_of_the_transitions(ro
     from rclpy.lifecycle import LifecycleNode
     from std_msgs.msg import String
 
-    from vessel_calib.node_support import release_publisher
+    from vessel_common.node_support import release_publisher
 
     node = LifecycleNode("lifecycle_probe", context=ros_context)
     try:

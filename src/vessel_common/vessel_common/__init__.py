@@ -1,0 +1,1 @@
+"""Plumbing shared by every package: errors, paths, node support, state files (imports nothing of the others)."""

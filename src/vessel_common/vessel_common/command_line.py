@@ -1,0 +1,41 @@
+"""The end every command-line tool of the project shares: one ``error:`` line and exit 2, or exit 130 on Ctrl-C.
+
+A tool's ``main(argv)`` raises ``VesselError`` for bad input (a missing file, a wrong value) and lets Ctrl-C
+through; ``@command_line_tool`` turns either into the documented exit, with no traceback. ``vessel_tools.cli``
+runs every tool through the same ``main`` functions, so ``./vessel TOOL``, ``python -m MODULE`` and
+``ros2 run vessel_tools TOOL`` end the same way.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable, Sequence
+
+from vessel_common.errors import VesselError
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+Main = Callable[[Sequence[str] | None], int | None]
+
+
+def command_line_tool(run: Main | None = None, *, interrupted: str = "interrupted") -> Callable:
+    """Decorate a tool's ``main(argv) -> status``; ``interrupted``: what Ctrl-C prints (e.g. what was kept)."""
+
+    def decorate(function: Main) -> Callable[[Sequence[str] | None], int]:
+        @functools.wraps(function)
+        def main(argv: Sequence[str] | None = None) -> int:
+            try:
+                status = function(argv)
+            except VesselError as error:
+                print(f"error: {error}", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            except KeyboardInterrupt:
+                print(interrupted, file=sys.stderr)
+                return EXIT_INTERRUPTED
+            return int(status or 0)
+
+        return main
+
+    return decorate(run) if run is not None else decorate

@@ -1,0 +1,32 @@
+"""Install vessel_tools: the demo, the graph runner, the benchmarks and the `vessel` command line."""
+from setuptools import find_packages, setup
+
+PACKAGE = "vessel_tools"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="Vessel tracking maintainers",
+    maintainer_email="maintainers@vessel-tracking.invalid",
+    description="The demo, the graph runner, the benchmarks and the vessel command line.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "vessel = vessel_tools.cli:console",
+            "calibrate = vessel_tools.calibrate:main",
+            "demo = vessel_tools.cli:demo",
+            "graph = vessel_tools.cli:graph",
+            "bench = vessel_tools.cli:bench",
+            "eval = vessel_tools.cli:evaluate",
+            "pipeline = vessel_tools.cli:pipeline",
+            "fit = vessel_tools.cli:fit",
+        ],
+    },
+)

@@ -1,0 +1,82 @@
+"""The one command line: every tool is listed and reachable, and each ends the documented way."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vessel_tools import cli
+
+REPO = Path(__file__).resolve().parents[3]
+CLI_FILE = REPO / "src" / "vessel_tools" / "vessel_tools" / "cli.py"
+
+
+def _every_tool():
+    for name, entry in cli.TOOLS.items():
+        if isinstance(entry, cli.Group):
+            yield from ((f"{name} {sub}", tool) for sub, tool in entry.tools.items())
+        else:
+            yield name, entry
+
+
+def test_the_help_lists_every_tool_with_the_fitting_ones():
+    text = cli.usage()
+    for label, tool in _every_tool():
+        assert f"  {label}" in text and tool.summary.split()[0] in text
+    assert "fit distance-model" in text and "fit error-model" in text and "params render" in text
+
+
+@pytest.mark.parametrize("argv, module, passed", [
+    (["bench"], "vessel_tools.bench", []),
+    (["bench", "--out", "F.json"], "vessel_tools.bench", ["--out", "F.json"]),
+    (["bench", "live", "--minutes", "1"], "vessel_tools.bench_live", ["--minutes", "1"]),
+    (["bag", "info", "B"], "vessel_detect.bag_build", ["--info", "B"]),
+    (["params", "render", "--out", "D"], "vessel_track.node_params", ["render", "--out", "D"]),
+    (["fit", "error-model", "S.csv"], "vessel_track.error_model_fit", ["S.csv"]),
+    (["demo", "--videos", "13"], "vessel_tools.demo", ["--videos", "13"]),
+])
+def test_each_command_line_reaches_its_tool_with_its_arguments(argv, module, passed):
+    tool, rest = cli.resolve(argv)
+    assert tool.module == module and [*tool.prefix, *rest] == passed
+
+
+@pytest.mark.parametrize("argv, says", [(["demos"], "unknown tool 'demos'"), (["fit"], "'fit': choose fit"),
+                                        (["bag", "show"], "'bag show': choose bag build | info | recover")])
+def test_a_wrong_tool_name_is_refused_with_the_choices(argv, says, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {says}") and "Tools (" in err
+
+
+def test_every_tool_module_has_a_main():
+    for label, tool in _every_tool():
+        module = importlib.import_module(tool.module)
+        assert callable(getattr(module, "main", None)), label
+
+
+def test_a_tool_ends_bad_input_with_one_error_line(tmp_path, capsys):
+    status = cli.main(["eval", str(tmp_path / "missing.csv"), "--data", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert status == 2 and err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_the_help_needs_nothing_but_the_standard_library():
+    """``./vessel help`` lists the tools with any python3, before set-up."""
+    tree = ast.parse(CLI_FILE.read_text())
+    imported = {alias.name.split(".")[0] for node in tree.body if isinstance(node, ast.Import) for alias in node.names}
+    imported |= {node.module.split(".")[0] for node in tree.body if isinstance(node, ast.ImportFrom) and node.module}
+    assert imported <= set(sys.stdlib_module_names) | {"__future__"}, imported
+    done = subprocess.run([sys.executable, "-I", str(CLI_FILE), "--list"], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0 and "bench restart" in done.stdout
+
+
+def test_the_vessel_script_lists_its_own_commands_and_the_tools():
+    done = subprocess.run(["bash", str(REPO / "vessel"), "help"], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0
+    for word in ("setup [--train]", "test [--fast]", "env", "run PKG EXE", "demo", "fit distance-model"):
+        assert word in done.stdout

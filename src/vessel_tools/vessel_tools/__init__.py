@@ -1,0 +1,1 @@
+"""What runs the graph and the offline tools from one command line: demo, graph runner, benchmarks, ``vessel``."""
