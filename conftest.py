@@ -38,6 +38,14 @@ def data_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
+def dataset(data_dir):
+    """The challenge dataset (``vessel_calib.dataset.Dataset``) of ``data_dir``; skips when absent."""
+    from vessel_calib.dataset import Dataset
+
+    return Dataset(data_dir)
+
+
+@pytest.fixture(scope="session")
 def model_path() -> Path:
     """The YOLOX-Nano ONNX model (``$VESSEL_MODEL`` or ``../shared/models``); skips the test when absent."""
     path = Path(os.environ.get("VESSEL_MODEL") or REPO_ROOT.parent / "shared/models/yolox_nano/yolox_nano.onnx")

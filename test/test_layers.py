@@ -47,7 +47,8 @@ _BY_LAYER = {
     "tools": """vessel_calib.dataset vessel_calib.calibration vessel_calib.calibration_plot
                 vessel_calib.gps_association vessel_detect.dataset_detection
                 vessel_detect.detect_cli vessel_detect.frame_boxes vessel_detect.bag_build vessel_detect.synthetic
-                vessel_detect.onnx_synthetic vessel_detect.training.augment vessel_detect.training.labels
+                vessel_detect.onnx_synthetic vessel_calib.synthetic vessel_detect.training.augment
+                vessel_detect.training.labels
                 vessel_detect.training.loss vessel_detect.training.model vessel_detect.training.model_card
                 vessel_detect.training.quantize vessel_detect.training.settings vessel_detect.training.train_cli
                 vessel_detect.training.trainer vessel_track.offline_data vessel_track.pipeline
@@ -55,7 +56,8 @@ _BY_LAYER = {
                 vessel_track.error_model_fit vessel_track.simulation""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
                vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart vessel_tools.graph
-               vessel_tools.cli vessel_tools.calibrate""",
+               vessel_tools.cli vessel_tools.calibrate vessel_tools.graph_watcher
+               vessel_tools.proc_monitor vessel_tools.results_page""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 
@@ -178,3 +180,15 @@ def test_each_package_declares_the_packages_it_imports():
         used = {other.split(".")[0] for module, others in _graph().items() if module.split(".")[0] == package
                 for other in others} - {package}
         assert used <= declared, f"{package}/package.xml lacks {sorted(used - declared)}"
+
+
+def test_each_package_test_module_is_named_for_a_module_of_its_package():
+    """``src/<package>/test/test_<module>[_<aspect>].py``: where to look for a module's tests, and the reverse."""
+    unnamed = []
+    for package in PACKAGES:
+        names = {name.split(".")[-1] for name in _modules() if name.split(".")[0] == package}
+        for path in sorted((REPO / "src" / package / "test").glob("test_*.py")):
+            stem = path.stem[len("test_"):]
+            if not any(stem == name or stem.startswith(f"{name}_") for name in names):
+                unnamed.append(str(path.relative_to(REPO)))
+    assert not unnamed, f"name these after the module they test: {unnamed}"

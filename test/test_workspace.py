@@ -16,8 +16,9 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 INSTALL_DIR = REPO_ROOT / "ros2_ws" / "install"
-PYTHON_PACKAGES = ("vessel_calib", "vessel_detect", "vessel_track")
-TOOLS_NOT_NODES = {("vessel_detect", "bag_build")}
+PYTHON_PACKAGES = ("vessel_calib", "vessel_detect", "vessel_track", "vessel_tools")
+TOOLS_NOT_NODES = {("vessel_detect", "bag_build")} | {("vessel_tools", tool) for tool in (
+    "vessel", "demo", "graph", "bench", "eval", "pipeline", "fit")}
 
 
 def declared_executables() -> list[tuple[str, str]]:
@@ -36,7 +37,7 @@ def declared_executables() -> list[tuple[str, str]]:
 
 EXECUTABLES = declared_executables()
 CONTRACT = {
-    ("vessel_calib", "calibrate"),
+    ("vessel_tools", "calibrate"),
     ("vessel_detect", "camera"),
     ("vessel_detect", "detector"),
     ("vessel_track", "tracker"),
@@ -80,7 +81,7 @@ def _node_arguments(package: str, executable: str, tmp_path: Path) -> list[str]:
         return ["--ros-args", "-p", f"source:={folder}", "-p", "rate:=1.0", "-p", "loop:=true"]
     if (package, executable) == ("vessel_detect", "recorder"):
         return ["--ros-args", "-p", f"output:={tmp_path / 'recording'}"]
-    if (package, executable) == ("vessel_calib", "calibrate"):
+    if (package, executable) == ("vessel_tools", "calibrate"):
         return ["--ros-args", "-p", f"out:={tmp_path / 'camera.yaml'}"]
     if executable in ("detector", "detector_managed", "fuser", "gps_publisher"):  # nodes that read the camera model
         return ["--ros-args", "--params-file", str(REPO_ROOT / "config" / "aitas_camera.yaml")]
@@ -146,3 +147,15 @@ def test_help_prints_usage_and_starts_nothing(package, executable, flag, ros_env
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith(f"usage: {executable}")  # calibrate is an argparse tool: no --ros-args
     assert "Traceback" not in done.stderr and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(("package", "executable"), sorted(e for e in TOOLS_NOT_NODES if e[0] == "vessel_tools"))
+def test_each_tool_script_answers_help(package, executable, ros_env, tmp_path):
+    """`ros2 run vessel_tools demo --help` (and `vessel --help`): the tool's usage, nothing started or written."""
+    path = INSTALL_DIR / package / "lib" / package / executable
+    args = ["--help"] if executable not in ("fit",) else ["error-model", "--help"]
+    done = subprocess.run([str(path), *args], env=ros_env, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "usage:" in done.stdout and "Traceback" not in done.stderr and list(tmp_path.iterdir()) == []
+

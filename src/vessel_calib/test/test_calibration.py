@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 
 from vessel_calib import geodesy
 from vessel_calib.calibration import (
@@ -13,6 +12,7 @@ from vessel_calib.calibration import (
     study_draws,
 )
 from vessel_calib.camera_model import CameraModel
+from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 from vessel_common.errors import CalibrationError
 
 

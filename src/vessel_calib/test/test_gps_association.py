@@ -7,10 +7,10 @@ import re
 
 import numpy as np
 import pytest
-from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
 
 from vessel_calib import geodesy
 from vessel_calib.gps_association import FrameBoxes, SearchOptions, associate_and_calibrate
+from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
 from vessel_common.errors import CalibrationError
 
 FAST = SearchOptions(hypotheses=20000, candidates_refined=4)
@@ -101,9 +101,8 @@ def _truth():
 
 
 def test_calibrate_a_folder_without_labels(tmp_path, capsys):
-    from calib_synthetic import write_search_folder
-
     from vessel_calib.params import load_camera_yaml
+    from vessel_calib.synthetic import write_search_folder
 
     detections = write_search_folder(tmp_path / "data", search_frames(_truth(), seed=3))
     out = tmp_path / "cal" / "camera.yaml"
@@ -123,7 +122,7 @@ def test_calibrate_a_folder_without_labels(tmp_path, capsys):
     ("too few frames", "only 8 frames with a GPS fix"),
 ])
 def test_calibrate_without_labels_refuses_bad_input(tmp_path, capsys, case, match):
-    from calib_synthetic import write_search_folder
+    from vessel_calib.synthetic import write_search_folder
 
     frames = search_frames(_truth(), seed=3, bearing_offset_deg=180.0 if case == "behind" else 0.0)
     if case == "too few frames":

@@ -3,15 +3,12 @@ import math
 
 import numpy as np
 import pytest
-from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_h
 
-from vessel_calib import geodesy
 from vessel_calib.calibration import calibrate, evaluate
 from vessel_calib.camera_model import CameraModel
+from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, T0, offset_pinhole, tidal_pairs
 from vessel_calib.water_level import WaterLevelTable, load_water_level
 from vessel_common.errors import CalibrationError, DataError
-
-T0 = 1601494200.0  # 2020-09-30 19:30:00 UTC
 
 
 # --------------------------------------------------------------------------------------------------- the table
@@ -62,15 +59,6 @@ def test_a_missing_file_says_what_to_give_and_no_file_means_no_correction(tmp_pa
 
 
 # --------------------------------------------------------------------------------------------------- the camera
-def offset_pinhole(height_m: float, nadir=(1.5, -2.0), focal_px=950.0, tilt_down_deg=-1.2, roll_deg=0.4,
-                   water_level_m=math.nan) -> CameraModel:
-    """A pinhole camera ``height_m`` above the sea, standing over ``nadir`` (world metres)."""
-    shift = np.array([[1.0, 0.0, -nadir[0]], [0.0, 1.0, -nadir[1]], [0.0, 0.0, 1.0]])
-    H = pinhole_h(height_m, 76.5, tilt_down_deg, focal_px, roll_deg) @ shift
-    return CameraModel(H, -3.5e-7, camera_lat=CAMERA_LAT, camera_lon=CAMERA_LON, box_anchor=0.65,
-                       water_level_m=water_level_m)
-
-
 def test_the_pinhole_behind_h_is_recovered():
     geometry = offset_pinhole(2.6).pinhole()
     assert geometry.focal_px == pytest.approx(950.0, rel=1e-6)
@@ -131,24 +119,6 @@ def test_water_level_and_height_round_trip_through_the_parameters():
 
 
 # --------------------------------------------------------------------------------------------------- the fit
-def tidal_pairs(n: int = 60, seed: int = 1):
-    """Pairs seen by a camera 2.6 m over the sea while the tide falls 0.35 m an hour for 30 minutes."""
-    rng = np.random.default_rng(seed)
-    stamps = T0 + np.sort(rng.uniform(0, 1800, n))
-    levels = 0.97 - 0.35 * (stamps - T0) / 3600
-    screen, gps = [], []
-    for level in levels:
-        camera = offset_pinhole(2.6 + (0.9 - level))  # water lower -> camera higher
-        while True:
-            x, y = rng.uniform(60, 1220), rng.uniform(0, 715)
-            xw, yw, ok = camera.screen_to_world(x, y)
-            if ok and 20 < math.hypot(xw, yw) < 250 and y > float(camera.horizon_y(x)) + 8:
-                break
-        screen.append((x, y))
-        gps.append(geodesy.local_to_gps(xw, yw, CAMERA_LAT, CAMERA_LON))
-    return np.array(screen), np.array(gps, dtype=float), levels
-
-
 def test_the_fit_with_the_tide_explains_pairs_a_fixed_h_cannot():
     screen, gps, levels = tidal_pairs()
     fixed = calibrate(screen, gps, CAMERA_LAT, CAMERA_LON, box_anchor=0.65)

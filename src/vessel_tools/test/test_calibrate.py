@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 
 from vessel_calib import geodesy
 from vessel_calib.calibration import evaluate
 from vessel_calib.params import load_camera_yaml
+from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 from vessel_tools import calibrate as calibrate_node
 
-SRC = str(Path(__file__).resolve().parents[1])
+SRC = ":".join(str(p) for p in sorted(Path(__file__).resolve().parents[2].glob("vessel_*")) if p.is_dir())
 REPO = Path(__file__).resolve().parents[3]
 CAM_ARGS = ["--camera-lat", str(CAMERA_LAT), "--camera-lon", str(CAMERA_LON), "--image-size", "1280x720"]
 
@@ -257,7 +257,7 @@ def test_water_level_with_a_pairs_csv(tmp_path, capsys):
 
     Without times, or outside the file: a one-line error and no file.
     """
-    from test_water_level import T0, tidal_pairs
+    from vessel_calib.synthetic import T0, tidal_pairs
 
     screen, gps, levels = tidal_pairs(40, seed=3)
     stamps = T0 + (0.97 - levels) / 0.35 * 3600  # the times the synthetic tide gave these levels

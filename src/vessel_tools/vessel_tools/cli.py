@@ -36,6 +36,8 @@ class Group:
 TOOLS: dict[str, Tool | Group] = {
     "demo": Tool("vessel_tools.demo", "the whole graph on the challenge videos, recorded, scored, plotted",
                  "[--data DIR] [--videos LIST] [--out DIR] [--calib FILE] [--detections labels|FILE.csv]"),
+    "results": Tool("vessel_tools.results_page", "the results page (docs/results.md) written from a demo's "
+                    "summary.json", "out/demo/summary.json --out docs/results.md"),
     "graph": Tool("vessel_tools.graph", "start the node graph as processes, what vessel_graph.launch.py does",
                   "[--source BAG|VIDEO|DIR|device:N] [--rate R] [--nodes LIST] [--respawn] [--record BAG]"),
     "eval": Tool("vessel_track.evaluation", "score predictions like the paper (m per 100 m, median, p80, coverage)",

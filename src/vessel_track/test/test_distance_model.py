@@ -112,7 +112,7 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     out.write_text("fuser:\n  ros__parameters:\n    fusion: {anchor_offset: 0.05, weights_mode: paper}\n"
                    f"    water_level: {{file: {tide}}}\ntracker:\n  ros__parameters: {{min_hits: 2}}\n")
     calib = repo / "config" / "aitas_camera.yaml"
-    assert main(["fit", "--data", str(data_dir), "--videos", "7-12", "--calib", str(calib), "--out", str(out)]) == 0
+    assert main(["--data", str(data_dir), "--videos", "7-12", "--calib", str(calib), "--out", str(out)]) == 0
     settings = load_fuser_settings(out)
     assert settings.fusion.anchor_offset == 0.05 and settings.fusion.weights_mode == "paper"
     assert settings.distance_model.n_points == 66

@@ -41,7 +41,7 @@ def test_fit_tool_writes_and_merges_the_parameter_file(tmp_path, capsys):
     scores.write_text("video,t_utc_s,error_m,distance_m\n13,1,5.0,100\n13,2,10.0,200\n13,3,,\n14,4,2.5,50\n")
     out = tmp_path / "params.yaml"
     out.write_text("fuser:\n  ros__parameters:\n    fusion: {anchor: 0.5}\ntracker:\n  ros__parameters: {a: 1}\n")
-    assert main(["fit", str(scores), "--out", str(out)]) == 0
+    assert main([str(scores), "--out", str(out)]) == 0
     doc = yaml.safe_load(out.read_text())
     assert doc["tracker"]["ros__parameters"] == {"a": 1}
     assert doc["fuser"]["ros__parameters"]["fusion"] == {"anchor": 0.5}
@@ -51,7 +51,7 @@ def test_fit_tool_writes_and_merges_the_parameter_file(tmp_path, capsys):
     assert ErrorModel.from_params(block).expected_error_m(100) == pytest.approx(5.0)
     assert "5.00 m per 100 m" in capsys.readouterr().out
     assert block["source"] == "fit on " + f"{tmp_path.name}/scores.csv"
-    assert main(["fit", str(scores), "--out", str(out), "--source", "online pipeline, videos 7-12"]) == 0
+    assert main([str(scores), "--out", str(out), "--source", "online pipeline, videos 7-12"]) == 0
     assert yaml.safe_load(out.read_text())["fuser"]["ros__parameters"]["error_model"]["source"] == \
         "online pipeline, videos 7-12"
 
@@ -65,7 +65,7 @@ def test_fit_tool_keeps_the_documented_parameter_file(tmp_path):
     out.write_text(shipped.read_text())
     scores = tmp_path / "scores.csv"
     scores.write_text("video,t_utc_s,error_m,distance_m\n13,1,5.0,100\n13,2,10.0,200\n")
-    assert main(["fit", str(scores), "--out", str(out)]) == 0
+    assert main([str(scores), "--out", str(out)]) == 0
     before, after = shipped.read_text().splitlines(), out.read_text().splitlines()
     assert len(after) == len(before)
     changed = [(a, b) for a, b in zip(before, after, strict=True) if a != b]
@@ -80,10 +80,10 @@ def test_fit_tool_keeps_the_documented_parameter_file(tmp_path):
 
 
 def test_fit_tool_reports_bad_input_without_traceback(tmp_path, capsys):
-    assert main(["fit", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "x.yaml")]) == 2
+    assert main([str(tmp_path / "missing.csv"), "--out", str(tmp_path / "x.yaml")]) == 2
     assert capsys.readouterr().err.startswith("error: ")
     bad = tmp_path / "bad.csv"
     bad.write_text("a,b\n1,2\n")
-    assert main(["fit", str(bad), "--out", str(tmp_path / "x.yaml")]) == 2
+    assert main([str(bad), "--out", str(tmp_path / "x.yaml")]) == 2
     assert "distance_m" in capsys.readouterr().err
     assert ErrorModel().slope == PAPER_SLOPE

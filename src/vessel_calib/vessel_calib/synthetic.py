@@ -1,4 +1,4 @@
-"""Synthetic cameras for the calibration tests: upright pinhole cameras over the sea plane."""
+"""Synthetic cameras and scenes for tests and studies: upright pinhole cameras over the sea plane, pairs, frames."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from vessel_calib import geodesy
 from vessel_calib.camera_model import CameraModel
 
 CAMERA_LAT = 32.70297
@@ -135,3 +136,34 @@ def write_search_folder(folder, frames, camera_lat: float = CAMERA_LAT, camera_l
     detections = folder / "detections.csv"
     detections.write_text("\n".join(box_rows) + "\n")
     return detections
+
+
+T0 = 1601494200.0
+"""2020-09-30 19:30:00 UTC: the start of the synthetic tide."""
+
+
+def offset_pinhole(height_m: float, nadir=(1.5, -2.0), focal_px=950.0, tilt_down_deg=-1.2, roll_deg=0.4,
+                   water_level_m=math.nan) -> CameraModel:
+    """A pinhole camera ``height_m`` above the sea, standing over ``nadir`` (world metres)."""
+    shift = np.array([[1.0, 0.0, -nadir[0]], [0.0, 1.0, -nadir[1]], [0.0, 0.0, 1.0]])
+    H = pinhole_h(height_m, 76.5, tilt_down_deg, focal_px, roll_deg) @ shift
+    return CameraModel(H, -3.5e-7, camera_lat=CAMERA_LAT, camera_lon=CAMERA_LON, box_anchor=0.65,
+                       water_level_m=water_level_m)
+
+
+def tidal_pairs(n: int = 60, seed: int = 1):
+    """Pairs seen by a camera 2.6 m over the sea while the tide falls 0.35 m an hour for 30 minutes."""
+    rng = np.random.default_rng(seed)
+    stamps = T0 + np.sort(rng.uniform(0, 1800, n))
+    levels = 0.97 - 0.35 * (stamps - T0) / 3600
+    screen, gps = [], []
+    for level in levels:
+        camera = offset_pinhole(2.6 + (0.9 - level))  # water lower -> camera higher
+        while True:
+            x, y = rng.uniform(60, 1220), rng.uniform(0, 715)
+            xw, yw, ok = camera.screen_to_world(x, y)
+            if ok and 20 < math.hypot(xw, yw) < 250 and y > float(camera.horizon_y(x)) + 8:
+                break
+        screen.append((x, y))
+        gps.append(geodesy.local_to_gps(xw, yw, CAMERA_LAT, CAMERA_LON))
+    return np.array(screen), np.array(gps, dtype=float), levels
