@@ -604,11 +604,13 @@ def _json_safe(value):
         return {k: _json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_json_safe(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
     return value
 
 
 def write_json(path: Path, result: dict) -> None:
-    """Write the result atomically (temp file + rename); non-finite numbers become null."""
+    """Write the result atomically (temp file + rename); non-finite numbers become null, paths strings."""
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     with os.fdopen(handle, "w") as stream:

@@ -17,7 +17,6 @@ nodes' own ``/diagnostics`` counters and an in-process watcher:
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import tempfile
@@ -30,7 +29,7 @@ import numpy as np
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir
-from vessel_tools.bench import GraphError, GraphSession, _domain_id, log, machine_info, summary_ms
+from vessel_tools.bench import GraphError, GraphSession, _domain_id, log, machine_info, summary_ms, write_json
 from vessel_tools.graph import default_calibration_file, default_params_file
 from vessel_tools.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
 from vessel_tools.proc_monitor import node_pid, read_proc
@@ -215,8 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = run(args)
     print(format_report(result))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=2, default=str) + "\n")
+        write_json(args.out, result)
         print(f"wrote {args.out}")
     return 0
 

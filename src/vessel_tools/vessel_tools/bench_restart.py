@@ -38,7 +38,7 @@ from vessel_calib import geodesy
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir
-from vessel_tools.bench import _domain_id, log, machine_info
+from vessel_tools.bench import _domain_id, log, machine_info, write_json
 from vessel_tools.graph_watcher import GraphWatcher
 
 RESTARTABLE = ("tracker", "fuser", "gps_publisher", "detector")
@@ -240,8 +240,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = run(args)
     print(format_report(result))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.out, result)
+        print(f"wrote {args.out}")
     return 0
 
 
