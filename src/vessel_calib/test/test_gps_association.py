@@ -89,9 +89,9 @@ def test_search_options_are_checked():
 
 # --------------------------------------------------------------------------- the calibrate command without labels
 def _cli(args, capsys):
-    from vessel_tools import calibrate as calibrate_node
+    from vessel_tools import calibrate as calibrate_tool
 
-    status = calibrate_node.main([str(a) for a in args])
+    status = calibrate_tool.main([str(a) for a in args])
     out, err = capsys.readouterr()
     return status, out, err
 

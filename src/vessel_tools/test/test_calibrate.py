@@ -12,7 +12,7 @@ from vessel_calib import geodesy
 from vessel_calib.calibration import evaluate
 from vessel_calib.params import load_camera_yaml
 from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
-from vessel_tools import calibrate as calibrate_node
+from vessel_tools import calibrate as calibrate_tool
 
 SRC = ":".join(str(p) for p in sorted(Path(__file__).resolve().parents[2].glob("vessel_*")) if p.is_dir())
 REPO = Path(__file__).resolve().parents[3]
@@ -32,7 +32,7 @@ def pairs_csv(tmp_path):
 
 
 def run_cli(args, capsys):
-    status = calibrate_node.main([str(a) for a in args])
+    status = calibrate_tool.main([str(a) for a in args])
     out, err = capsys.readouterr()
     return status, out, err
 
@@ -188,20 +188,16 @@ def test_ros_params_file_block(tmp_path, pairs_csv, capsys):
 
 
 def test_only_ros_args_without_data_says_what_it_needs(monkeypatch, capsys):
-    import vessel_common.paths as paths_module
-
-    monkeypatch.setattr(paths_module, "default_data_dir", lambda: None)
+    monkeypatch.setattr(calibrate_tool, "default_data_dir", lambda: None)
     status, stdout, err = run_cli(["--ros-args"], capsys)
     assert status == 0 and "nothing to do" in stdout and "--data" in stdout
 
 
 def test_interrupt_writes_nothing(tmp_path, pairs_csv, monkeypatch, capsys):
-    import vessel_calib.calibration as calibration_module
-
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(calibration_module, "calibrate", interrupted)
+    monkeypatch.setattr(calibrate_tool, "calibrate", interrupted)
     out = tmp_path / "cal.yaml"
     status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--out", out], capsys)
     assert status == 0 and "interrupted, nothing written" in err
@@ -302,8 +298,8 @@ def test_a_fit_with_few_pairs_warns_and_gives_a_leave_one_out_figure(tmp_path, c
 
 def test_ros_parameters_reach_options_whose_flag_differs_from_their_name():
     # --from stores into pairs_from; -p pairs_from:=... must reach it, and -p from:=... is not a parameter name.
-    assert calibrate_node._ros_params_to_cli(["--ros-args", "-p", "pairs_from:=detections", "-p",
+    assert calibrate_tool._ros_params_to_cli(["--ros-args", "-p", "pairs_from:=detections", "-p",
                                               "max_camera_offset:=20"]) == ["--from", "detections",
                                                                             "--max-camera-offset", "20"]
-    with pytest.raises(calibrate_node.CalibrationError, match="unknown parameter 'from'"):
-        calibrate_node._ros_params_to_cli(["--ros-args", "-p", "from:=detections"])
+    with pytest.raises(calibrate_tool.CalibrationError, match="unknown parameter 'from'"):
+        calibrate_tool._ros_params_to_cli(["--ros-args", "-p", "from:=detections"])

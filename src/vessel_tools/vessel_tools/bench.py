@@ -38,8 +38,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from vessel_calib.camera_model import CameraModel
+from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
+from vessel_common.paths import default_data_dir, parse_videos
+from vessel_detect.bag_build import BuildOptions, build_from_dataset
+from vessel_detect.bag_io import BagReader
+from vessel_detect.detector_params import ALL_PARAMS, build_detector, merge_values
 from vessel_tools.graph import (
     GRAPH_NODES,
     GraphRunner,
@@ -161,10 +167,6 @@ def build_core_detector(parameters: dict[str, object]) -> CoreDetector:
     the ``camera.*`` calibration (``declare_camera_model``: its keys, the challenge camera's values by default),
     then calls ``detector_params.build_detector(values, camera)``; so does this.
     """
-    from vessel_calib.camera_model import CameraModel
-    from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
-    from vessel_detect.detector_params import ALL_PARAMS, build_detector, merge_values
-
     declared = {spec.name for spec in ALL_PARAMS}
     values = merge_values({key: value for key, value in parameters.items() if key in declared})
     camera_values = {key: parameters.get(f"camera.{key}", default)
@@ -185,8 +187,6 @@ def build_core_detector(parameters: dict[str, object]) -> CoreDetector:
 # --------------------------------------------------------------------------------------------------------------
 def prepare_bag(video: int, data: Path | None, bags: Path | None) -> Path:
     """The bag folder of ``video``; built from the dataset when missing."""
-    from vessel_common.paths import default_data_dir
-
     shared = default_data_dir()
     is_shared = data is None or (shared is not None and Path(data).resolve() == shared.resolve())
     root = bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
@@ -200,7 +200,6 @@ def prepare_bag(video: int, data: Path | None, bags: Path | None) -> Path:
             f"../shared/aitas), set VESSEL_DATA, or build it with ./vessel bag build --data DIR --videos {video} "
             f"--out {root}"
         )
-    from vessel_detect.bag_build import BuildOptions, build_from_dataset
 
     log(f"building the bag of video {video} from {source} into {root}")
     build_from_dataset(Path(source), root, [video], BuildOptions(overwrite=True), report=log)
@@ -209,8 +208,6 @@ def prepare_bag(video: int, data: Path | None, bags: Path | None) -> Path:
 
 def read_bag_jpegs(bag: Path) -> list[tuple[float, bytes]]:
     """(stamp s, JPEG bytes) of every image of the bag, in order."""
-    from vessel_detect.bag_io import BagReader
-
     with BagReader(bag) as reader:
         frames = list(reader.images())
     if not frames:
@@ -677,8 +674,6 @@ def _domain_id() -> int:
 
 def run(args: argparse.Namespace) -> dict:
     """The whole benchmark; the result dictionary (also what ``--out`` writes)."""
-    from vessel_common.paths import parse_videos
-
     videos = parse_videos(args.videos)
     if len(videos) != 1:
         raise DataError(f"--videos {args.videos}: the benchmark replays one video (looped for more frames); "

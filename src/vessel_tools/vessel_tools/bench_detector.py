@@ -31,9 +31,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vessel_calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
-from vessel_common.paths import repo_file
+from vessel_common.paths import default_data_dir, repo_file, repo_root
 from vessel_detect.detector_params import build_detector, load_params_files, open_model
 
 MODES = ("full", "band", "tiled")
@@ -87,8 +88,6 @@ def _ros_available() -> str | None:
 
 def detector_executable() -> Path:
     """The installed console script of the detector node."""
-    from vessel_common.paths import repo_root
-
     return repo_root() / "ros2_ws" / "install" / "vessel_detect" / "lib" / "vessel_detect" / "detector"
 
 
@@ -196,9 +195,6 @@ class NodeDriver:
 
 def run(args: argparse.Namespace) -> dict:
     """Measure and print; return the figures."""
-    from vessel_calib.dataset import Dataset
-    from vessel_common.paths import default_data_dir
-
     data = Path(args.data) if args.data else default_data_dir()
     if data is None:
         raise DataError("no dataset folder: pass --data DIR or set VESSEL_DATA (default ../shared/aitas)")

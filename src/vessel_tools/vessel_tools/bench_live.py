@@ -17,6 +17,7 @@ nodes' own ``/diagnostics`` counters and an in-process watcher:
 from __future__ import annotations
 
 import argparse
+import datetime
 import math
 import sys
 import tempfile
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vessel_calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir
@@ -68,7 +70,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def _frames_folder(data: Path | None, video: int) -> tuple[Path, str]:
-    from vessel_calib.dataset import Dataset
 
     folder = data or default_data_dir()
     if folder is None:
@@ -76,7 +77,6 @@ def _frames_folder(data: Path | None, video: int) -> tuple[Path, str]:
     frames = Dataset(folder).frames([video])
     if not frames:
         raise DataError(f"video {video} has no frames in {folder / 'frames.csv'}")
-    import datetime
 
     start = datetime.datetime.fromtimestamp(frames[0].stamp, datetime.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
     return frames[0].path.parent, start

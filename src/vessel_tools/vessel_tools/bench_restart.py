@@ -40,6 +40,7 @@ from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir
 from vessel_tools.bench import _domain_id, log, machine_info, write_json
 from vessel_tools.graph_watcher import GraphWatcher
+from vessel_track.offline_data import open_dataset
 
 RESTARTABLE = ("tracker", "fuser", "gps_publisher", "detector")
 FIRST_AFTER = 10
@@ -147,7 +148,6 @@ def _truth_errors(args: argparse.Namespace, run: Run) -> dict[int, float]:
     """Each fix's distance to the vessel's GPS at its stamp (m), where the dataset has it; {} for --source."""
     if args.source is not None or not run.fixes:
         return {}
-    from vessel_track.offline_data import open_dataset
 
     stamps = sorted(run.fixes)
     lat, lon, valid = open_dataset(args.data).gps_track().interpolate(np.array(stamps) / 1e9, max_gap_s=3.0)

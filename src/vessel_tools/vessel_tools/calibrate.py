@@ -29,18 +29,41 @@ from __future__ import annotations
 
 import argparse
 import csv
+import datetime
 import math
 import os
 import shlex
 import signal
 import sys
+import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from vessel_calib import geodesy
+from vessel_calib.calibration import (
+    DEFAULT_BOX_ANCHOR,
+    FEW_PAIRS,
+    LOSSES,
+    MIN_PAIRS_TO_WRITE,
+    PAPER_OPTIONS,
+    FitOptions,
+    calibrate,
+    degrees_of_freedom,
+    evaluate,
+    leave_one_pair_out_errors,
+    study_draws,
+)
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, box_points
+from vessel_calib.dataset import Dataset
+from vessel_calib.gps_association import SearchOptions, associate_and_calibrate
+from vessel_calib.gps_track import GpsTrack, parse_time
+from vessel_calib.params import read_params_yaml, write_camera_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import CalibrationError, DataError
+from vessel_common.paths import default_data_dir, parse_videos, repo_root
 
 if TYPE_CHECKING:
     from vessel_calib.calibration import CalibrationResult, FitOptions
@@ -70,9 +93,6 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
-    from vessel_calib.calibration import DEFAULT_BOX_ANCHOR, LOSSES
-    from vessel_calib.gps_association import SearchOptions
-
     p = _Parser(prog="calibrate", description=__doc__.split("\n\n")[0],
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     src = p.add_argument_group("input")
@@ -203,8 +223,6 @@ NODE_NAME = "calibrate"
 
 def _params_file_options(path: str) -> list[str]:
     """Options from the ``calibrate:`` block of a ROS parameter file (other nodes' blocks are ignored)."""
-    from vessel_calib.params import read_params_yaml
-
     blocks = read_params_yaml(path)
     options: list[str] = []
     for node, params in blocks.items():
@@ -268,10 +286,6 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
     Box corners become the box's horizontal centre, ``anchor`` of the way down it; x,y columns are used as given.
     ``stamps`` are the time column's Unix seconds (NaN without one: needed only for ``--water-level``).
     """
-    import numpy as np
-
-    from vessel_calib.gps_track import GpsTrack, parse_time
-
     path = Path(path)
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
@@ -339,7 +353,6 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
 
 
 def _utc(stamp: float) -> str:
-    import datetime
 
     return datetime.datetime.fromtimestamp(stamp, datetime.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
@@ -355,8 +368,6 @@ def _picture_frame(ds: Dataset | None, videos) -> Path | None:
 
 def _fit_options(args) -> FitOptions:
     """FitOptions from the command line."""
-    from vessel_calib.calibration import PAPER_OPTIONS, FitOptions
-
     if args.method == "paper":
         options = PAPER_OPTIONS
     else:
@@ -387,11 +398,6 @@ class _Pairs:
 
 def run(args) -> int:
     """Do the work for parsed ``args``; raises VesselError for bad input."""
-    from vessel_calib import geodesy
-    from vessel_calib.calibration import calibrate
-    from vessel_calib.dataset import Dataset
-    from vessel_common.paths import default_data_dir
-
     data_dir = args.data
     if not data_dir and not args.pairs_csv and not args.video:
         found = default_data_dir()
@@ -431,10 +437,6 @@ def run(args) -> int:
 
 def _collect_pairs(args, ds, camera_lat: float, camera_lon: float, water_level) -> _Pairs:
     """The pairs from a video file, a pairs CSV or a data folder (its labels, detections or both)."""
-    import numpy as np
-
-    from vessel_common.paths import parse_videos
-
     image_size = _parse_size(args.image_size, ds.image_size if ds is not None else (1280, 720))
     center = _parse_center(args.center, image_size) if args.center or ds is None else ds.center
     if args.video:
@@ -483,10 +485,6 @@ def _collect_pairs(args, ds, camera_lat: float, camera_lon: float, water_level) 
 
 def _draw_pairs(args, pairs: _Pairs) -> None:
     """``--pairs N --seed S``: keep a random draw of N pairs (the paper's protocol)."""
-    import numpy as np
-
-    from vessel_calib.calibration import MIN_PAIRS_TO_WRITE
-
     if args.pairs is None:
         return
     if args.pairs < MIN_PAIRS_TO_WRITE:
@@ -501,10 +499,6 @@ def _draw_pairs(args, pairs: _Pairs) -> None:
 
 def _pair_levels(args, pairs: _Pairs, water_level):
     """The water level at each pair (None without ``--water-level``); refuses too few pairs to measure a fit."""
-    import numpy as np
-
-    from vessel_calib.calibration import MIN_PAIRS_TO_WRITE
-
     levels = None
     if water_level is not None:
         if not np.all(np.isfinite(pairs.stamps)):
@@ -522,10 +516,6 @@ def _pair_levels(args, pairs: _Pairs, water_level):
 
 def _report_fit(args, pairs: _Pairs, available: int, result, options, levels, camera_lat, camera_lon) -> None:
     """The fit's report; with few pairs, each one back-projected by a fit of the others."""
-    import numpy as np
-
-    from vessel_calib.calibration import FEW_PAIRS, degrees_of_freedom, leave_one_pair_out_errors
-
     screen = pairs.screen
     print(f"calibrate: fitted on {pairs.source}: {len(screen)} of {available} pairs", flush=True)
     for note in pairs.notes:
@@ -552,11 +542,6 @@ def _report_fit(args, pairs: _Pairs, available: int, result, options, levels, ca
 
 def _evaluate(args, ds, result, water_level, all_screen, all_gps, camera_lat, camera_lon, pairs: _Pairs, options):
     """``--evaluate-on`` and ``--draws``: figures on held-out labelled videos; their pairs (None without)."""
-    import numpy as np
-
-    from vessel_calib.calibration import evaluate, study_draws
-    from vessel_common.paths import parse_videos
-
     if ds is None:
         if args.evaluate_on or args.draws:
             raise CalibrationError("--evaluate-on and --draws need a data folder (--data DIR)")
@@ -590,8 +575,6 @@ def _evaluate(args, ds, result, water_level, all_screen, all_gps, camera_lat, ca
 
 def _write(args, pairs: _Pairs, result, ds, eval_pairs) -> None:
     """The calibration YAML and its picture, atomically."""
-    from vessel_common.paths import repo_root
-
     out = Path(args.out) if args.out else repo_root() / "out" / "calibration" / f"{pairs.name}_camera.yaml"
     if out.suffix.lower() not in (".yaml", ".yml"):
         raise CalibrationError(f"--out must be a .yaml file, got {out}")
@@ -606,7 +589,6 @@ def _write(args, pairs: _Pairs, result, ds, eval_pairs) -> None:
 
 
 def _search_options(args):
-    from vessel_calib.gps_association import SearchOptions
 
     return SearchOptions(box_anchor=args.box_anchor, seed=args.seed, hypotheses=args.hypotheses,
                          min_associations=args.min_associations, max_nadir_m=args.max_camera_offset).checked()
@@ -623,8 +605,6 @@ def _levels_at(water_level, stamps, what: str):
 
     CalibrationError naming how many ``what`` fall outside the file.
     """
-    import numpy as np
-
     if water_level is None:
         return None
     levels = water_level.level_at(np.asarray(stamps, dtype=float))
@@ -637,8 +617,6 @@ def _levels_at(water_level, stamps, what: str):
 
 def _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center, water_level):
     """The label-free association over a data folder's frames (detector boxes + the vessel's GPS)."""
-    from vessel_calib.gps_association import associate_and_calibrate
-
     frame_boxes = _frame_boxes_module()
     frames, without_gps = frame_boxes.dataset_frame_boxes(ds, videos, args.detections, args.detector_params,
                                                           args.max_gap_s, args.save_detections)
@@ -650,9 +628,6 @@ def _search_dataset(args, ds, videos, camera_lat, camera_lon, image_size, center
 
 def _search_video(args, camera_lat, camera_lon, center_text, water_level):
     """The label-free association over a video file's frames; (association, a saved frame, image size)."""
-    from vessel_calib.gps_association import associate_and_calibrate
-    from vessel_calib.gps_track import GpsTrack, parse_time
-
     if not args.gps or not args.start_utc:
         raise CalibrationError("--video needs --gps TRACK (CSV or GPX of the boat in view) and --start-utc TIME (the "
                                "video's first frame, ISO-8601 UTC or epoch seconds)")
@@ -686,7 +661,6 @@ def _search_video(args, camera_lat, camera_lon, center_text, water_level):
 def _temporary_frame(image) -> Path:
     """``image`` saved as a JPEG for the picture, removed when the process ends."""
     import atexit
-    import tempfile
 
     import cv2
 
@@ -734,8 +708,6 @@ def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pa
 
     Either both files appear complete or neither does (an interrupt before the commit leaves nothing behind).
     """
-    from vessel_calib.params import write_camera_yaml
-
     tmp_picture = None
     try:
         if picture is not None:

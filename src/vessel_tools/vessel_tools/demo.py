@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import os
 import sys
 import time
@@ -20,10 +21,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+import yaml
+
 from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset
+from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.command_line import command_line_tool
-from vessel_common.errors import VesselError
+from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos
+from vessel_detect.bag_build import BuildOptions, build_from_dataset
+from vessel_detect.bag_io import BagReader, ns_of_stamp, recover_bag
+from vessel_detect.replay_detector_node import CSV_COLUMNS
+from vessel_tools import calibrate as calibrate_tool
+from vessel_tools.demo_report import write_report
 from vessel_tools.graph import (
     GRAPH_NODES,
     RECORDER,
@@ -34,7 +44,10 @@ from vessel_tools.graph import (
     wait_until_connected,
 )
 from vessel_tools.graph_watcher import GraphWatcher
-from vessel_track.fuser_settings import HAND_BOX_FUSION
+from vessel_track.evaluation import FIX_COLUMNS
+from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
+from vessel_track.offline_data import DetectionFrame
+from vessel_track.tracker import load_tracker_config
 
 REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")
 OUTPUT_TOPICS = {
@@ -89,10 +102,6 @@ def merged_params_file(base: Path, overlay: Path, out: Path) -> Path:
 
     One file for the nodes and the offline pass alike, as ``--params-file base --params-file overlay`` would give.
     """
-    import yaml
-
-    from vessel_calib.params import atomic_write_text
-
     if not Path(overlay).is_file():
         raise VesselError(f"--detector-params {overlay} not found (e.g. config/detector_coco.yaml)")
 
@@ -120,7 +129,6 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_l
         if not calib.is_file():
             raise VesselError(f"calibration file {calib} not found: run ./vessel calibrate or drop --calib")
         return calib
-    from vessel_tools import calibrate as calibrate_tool
 
     sources = [dataset]
     shared = default_data_dir()
@@ -151,8 +159,6 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_l
 
 def prepare_bags(dataset: Dataset, videos: list[int], bag_root: Path) -> dict[int, Path]:
     """Bag folders ``bag_root/video_<N>``, built from the dataset where missing."""
-    from vessel_detect.bag_build import BuildOptions, build_from_dataset
-
     missing = [v for v in videos if not (bag_root / f"video_{v}" / "metadata.yaml").is_file()]
     if missing:
         log(f"building bags for videos {missing} into {bag_root}")
@@ -166,8 +172,6 @@ def write_saved_detections(frames, video: int, path: Path) -> None:
     Frames without boxes have no row (the replay detector, following the camera, publishes an empty array for
     their images).
     """
-    from vessel_detect.replay_detector_node import CSV_COLUMNS
-
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
@@ -185,8 +189,6 @@ def write_label_detections(dataset: Dataset, video: int, path: Path) -> int:
     Hand labels are drawn on frames that need not be among the dataset's images, so ``replay_detector`` runs
     self-paced on their own stamps instead of following the camera.
     """
-    from vessel_detect.replay_detector_node import CSV_COLUMNS
-
     labels = dataset.labels([video], primary_only=True)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as handle:
@@ -303,9 +305,6 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
 # --------------------------------------------------------------------------------------------------------------
 def readable_recording(run: VideoRun, log) -> bool:
     """Whether a video's recording can be read; a recorder that died is recovered (``bag_io.recover_bag``) first."""
-    from vessel_common.errors import DataError
-    from vessel_detect.bag_io import BagReader, recover_bag
-
     try:
         BagReader(run.recording).close()
         return True
@@ -325,11 +324,6 @@ def export_recordings(runs: list[VideoRun], out: Path) -> tuple[Path, Path]:
 
     Also ``fixes.csv``: the same fixes with their east-north covariance (how honest it is goes into the report).
     """
-    import math
-
-    from vessel_detect.bag_io import BagReader, ns_of_stamp
-    from vessel_track.evaluation import FIX_COLUMNS
-
     predictions_path = out / "predictions.csv"
     tracks_path = out / "tracks.csv"
     with predictions_path.open("w", newline="") as p_handle, tracks_path.open("w", newline="") as t_handle, \
@@ -376,9 +370,6 @@ def tide_overrides(calibration: Path, params_file: Path) -> dict:
     start, so the demo says so and runs without the correction (``FuserSettings.for_camera``, which the offline
     pass applies too).
     """
-    from vessel_calib.params import load_camera_yaml
-    from vessel_track.fuser_settings import load_fuser_settings
-
     settings, note = load_fuser_settings(params_file).for_camera(load_camera_yaml(calibration), str(calibration))
     if note:
         log(note)
@@ -395,14 +386,7 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     mode ``offline``). With ``hand_boxes`` the boxes are read as the fuser node read them
     (``FuserSettings.for_hand_boxes``).
     """
-    import numpy as np
-
-    from vessel_calib.params import load_camera_yaml
-    from vessel_detect.bag_io import BagReader, ns_of_stamp
-    from vessel_track.fuser_settings import load_fuser_settings
-    from vessel_track.offline_data import DetectionFrame
     from vessel_track.pipeline import PipelineConfig, run_video, write_predictions_csv
-    from vessel_track.tracker import load_tracker_config
 
     camera = load_camera_yaml(calibration)
     settings, _ = load_fuser_settings(params_file).for_camera(camera)  # the note was logged by tide_overrides
@@ -456,7 +440,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.detector_params is not None:
         params_file = merged_params_file(params_file, args.detector_params, out / "params.yaml")
         log(f"parameters: {args.detector_params} over {args.params or default_params_file()} -> {params_file}")
-    from vessel_track.fuser_settings import load_fuser_settings
 
     water_level = load_fuser_settings(params_file).water_level
     if water_level.file:
@@ -498,7 +481,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not runs:
         raise VesselError("no video left a readable recording: see the logs in " + str(out / "logs"))
     predictions, tracks = export_recordings(runs, out)
-    from vessel_tools.demo_report import write_report
 
     offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
     summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,

@@ -18,6 +18,8 @@ from pathlib import Path
 
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
+from vessel_common.node_support import image_qos_profile
+from vessel_common.paths import repo_root
 from vessel_detect import bag_io
 
 
@@ -29,7 +31,6 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import CompressedImage
 
-    from vessel_common.node_support import image_qos_profile
 
     with bag_io.BagReader(bag) as reader:
         expected = [bag_io.sec_to_ns(t) for t, _ in reader.images()]
@@ -55,7 +56,6 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
         Clock, "/clock", lambda m: clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
     )
-    from vessel_common.paths import repo_root
 
     exe = repo_root() / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
