@@ -23,6 +23,21 @@ REPO_ROOT = Path(__file__).resolve().parent
 INSTALL_DIR = REPO_ROOT / "ros2_ws" / "install"
 
 
+ROS_FIXTURES = {"ros_env", "ros_context", "start_node"}
+DATA_FIXTURES = {"data_dir", "dataset", "model_path"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects
+def pytest_collection_modifyitems(config, items) -> None:
+    """A test that takes a ROS or shared-data fixture carries that marker (``--fast`` deselects both)."""
+    for item in items:
+        used = set(getattr(item, "fixturenames", ()))
+        if used & ROS_FIXTURES:
+            item.add_marker(pytest.mark.ros)
+        if used & DATA_FIXTURES:
+            item.add_marker(pytest.mark.data)
+
+
 def _shared_dir(env_var: str, relative: str) -> Path:
     explicit = os.environ.get(env_var)
     return Path(explicit) if explicit else (REPO_ROOT.parent / "shared" / relative)
