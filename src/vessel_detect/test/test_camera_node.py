@@ -3,8 +3,6 @@
 Needs the built workspace (rclpy, vessel_msgs, the installed `camera` executable); skipped without it.
 """
 
-import os
-import random
 import subprocess
 import time
 from pathlib import Path
@@ -35,11 +33,9 @@ from vessel_msgs.msg import Detection2DArray  # noqa: E402
 class Probe:
     """A node in its own rclpy context and DDS domain that records what the camera publishes."""
 
-    def __init__(self, domain_id: int, ack: bool = False) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("camera_test_probe", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+    def __init__(self, context, ack: bool = False) -> None:
+        self.node = rclpy.create_node("camera_test_probe", context=context)
+        self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.images, self.clock, self.fixes, self.truth, self.diagnostics = [], [], [], [], []
         self.received_at = []
@@ -78,39 +74,43 @@ class Probe:
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
 
 
 def stamp(time_msg) -> int:
     return time_msg.sec * 1_000_000_000 + time_msg.nanosec
 
 
-def start_camera(domain_id: int, *params: str) -> subprocess.Popen:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    args = [str(CAMERA_EXE), "--ros-args"]
+def start_camera(env: dict[str, str], *params: str, executable: str = "camera") -> subprocess.Popen:
+    """The camera node in its own process (output on a pipe), in the test's ROS domain (``ros_env``)."""
+    args = [str(CAMERA_EXE.with_name(executable)), "--ros-args"]
     for p in params:
         args += ["-p", p]
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def replay(bag, *params, ack=False, timeout_s=60.0):
-    domain_id = random.randint(1, 100)
-    probe = Probe(domain_id, ack=ack)
-    process = start_camera(domain_id, f"source:={bag}", "wait_for_subscribers:=1", "end_linger_s:=0.5", *params)
-    try:
-        probe.spin_while(process, timeout_s)
-        assert process.poll() is not None, "camera node did not exit at the end of the bag"
-        output = process.stdout.read()
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        probe.close()
-    return probe, process.returncode, output
+@pytest.fixture
+def replay(ros_env, ros_context):
+    """``replay(bag, *params, ack=False)``: the camera plays a bag to its end to a probe; (probe, status, output)."""
+
+    def run(bag, *params, ack=False, timeout_s=60.0):
+        probe = Probe(ros_context, ack=ack)
+        process = start_camera(ros_env, f"source:={bag}", "wait_for_subscribers:=1", "end_linger_s:=0.5", *params)
+        try:
+            probe.spin_while(process, timeout_s)
+            assert process.poll() is not None, "camera node did not exit at the end of the bag"
+            output = process.stdout.read()
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+            probe.close()
+        return probe, process.returncode, output
+
+    return run
 
 
 @pytest.mark.parametrize(("rate", "frames"), [(1.0, 8), (10.0, 30)])
-def test_replay_delivers_every_frame_with_original_stamps_and_clock(tmp_path, rate, frames):
+def test_replay_delivers_every_frame_with_original_stamps_and_clock(tmp_path, rate, frames, replay):
     step = 0.2
     stamps = synthetic.write_bag(tmp_path / "bag", frames=frames, frame_step_s=step)
     probe, status, output = replay(tmp_path / "bag", f"rate:={rate}")
@@ -132,7 +132,7 @@ def test_replay_delivers_every_frame_with_original_stamps_and_clock(tmp_path, ra
     assert counts["count.frames_sent"] == str(frames) and counts["count.frames_bad"] == "0"
 
 
-def test_as_fast_as_consumed_with_a_bad_frame(tmp_path):
+def test_as_fast_as_consumed_with_a_bad_frame(tmp_path, replay):
     stamps = synthetic.write_bag(tmp_path / "bag", frames=10, frame_step_s=4.0, bad_frames=(4,))
     # wait_for_subscribers -1 (automatic): at rate 0 it holds the first frame for the image subscriber and the
     # detector (here: this probe publishing the acknowledgements)
@@ -148,7 +148,7 @@ def test_as_fast_as_consumed_with_a_bad_frame(tmp_path):
     assert set(good) <= set(probe.clock) and probe.clock == sorted(probe.clock)
 
 
-def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path):
+def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path, replay):
     stamps = synthetic.write_bag(tmp_path / "bag", frames=5, frame_step_s=4.0, with_fixes=False)
     probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=0.2", "publish_clock:=false",
                                    "max_frames:=3")
@@ -159,14 +159,14 @@ def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path):
     assert len(probe.fixes) == 1  # no fix in the bag: published from the camera.* parameters
 
 
-def test_bad_source_exits_with_one_error_line(tmp_path):
-    process = start_camera(random.randint(1, 100), f"source:={tmp_path / 'missing'}")
+def test_bad_source_exits_with_one_error_line(tmp_path, ros_env):
+    process = start_camera(ros_env, f"source:={tmp_path / 'missing'}")
     output, _ = process.communicate(timeout=60)
     assert process.returncode == 2
     assert "error: source" in output and "does not exist" in output and "Traceback" not in output
 
 
-def test_a_bag_cut_short_plays_what_it_holds_says_what_was_lost_and_exits_non_zero(tmp_path):
+def test_a_bag_cut_short_plays_what_it_holds_says_what_was_lost_and_exits_non_zero(tmp_path, replay):
     """A bag cut at 50 % played nothing, although half of it was intact."""
     bag = tmp_path / "bag"
     start = 1_601_494_000_000_000_000
@@ -187,18 +187,15 @@ def test_a_bag_cut_short_plays_what_it_holds_says_what_was_lost_and_exits_non_ze
     assert "Traceback" not in output
 
 
-def test_managed_camera_streams_only_while_active(tmp_path, ask_service):
+def test_managed_camera_streams_only_while_active(tmp_path, ask_service, ros_env, ros_context):
     """Configure opens the source, activate streams it, deactivate stops, cleanup closes it, shutdown ends."""
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState, GetState
 
     synthetic.write_bag(tmp_path / "bag", frames=200, frame_step_s=0.1)
-    domain_id = random.randint(1, 100)
-    probe = Probe(domain_id)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    process = subprocess.Popen([str(CAMERA_EXE.with_name("camera_managed")), "--ros-args", "-p",
-                                f"source:={tmp_path / 'bag'}", "-p", "rate:=1.0", "-p", "wait_for_subscribers:=1"],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    probe = Probe(ros_context)
+    process = start_camera(ros_env, f"source:={tmp_path / 'bag'}", "rate:=1.0", "wait_for_subscribers:=1",
+                           executable="camera_managed")
     change = probe.node.create_client(ChangeState, "/camera/change_state")
     get = probe.node.create_client(GetState, "/camera/get_state")
 
@@ -239,16 +236,12 @@ def test_managed_camera_streams_only_while_active(tmp_path, ask_service):
     assert "Traceback" not in output
 
 
-def test_a_managed_camera_with_a_bad_source_fails_to_configure(tmp_path):
+def test_a_managed_camera_with_a_bad_source_fails_to_configure(tmp_path, ros_env, ros_context):
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
 
-    domain_id = random.randint(1, 100)
-    probe = Probe(domain_id)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    process = subprocess.Popen([str(CAMERA_EXE.with_name("camera_managed")), "--ros-args", "-p",
-                                f"source:={tmp_path / 'missing'}"], env=env, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT, text=True)
+    probe = Probe(ros_context)
+    process = start_camera(ros_env, f"source:={tmp_path / 'missing'}", executable="camera_managed")
     change = probe.node.create_client(ChangeState, "/camera/change_state")
     try:
         deadline = time.monotonic() + 60
@@ -266,7 +259,7 @@ def test_a_managed_camera_with_a_bad_source_fails_to_configure(tmp_path):
     assert "configure failed" in output and "missing" in output and "Traceback" not in output
 
 
-def test_a_replay_cut_by_ctrl_c_ends_quietly(tmp_path, monkeypatch):
+def test_a_replay_cut_by_ctrl_c_ends_quietly(tmp_path, monkeypatch, ros_env):
     """A replay whose context Ctrl-C shut down under a publish ends quietly: no traceback, exit status 0.
 
     rclpy's signal handler shuts the context down before the node's close() stops the replay thread.
@@ -284,7 +277,6 @@ def test_a_replay_cut_by_ctrl_c_ends_quietly(tmp_path, monkeypatch):
         cv2.imwrite(str(folder / f"{i:05d}.jpg"), np.full((72, 128, 3), 40 * i, dtype=np.uint8))
     thread_errors = []
     monkeypatch.setattr(threading, "excepthook", thread_errors.append)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(101, 200)))
     context = rclpy.Context()
     rclpy.init(context=context, args=["camera", "--ros-args", "-p", f"source:={folder}", "-p", "loop:=true",
                                       "-p", "fps:=50.0"])

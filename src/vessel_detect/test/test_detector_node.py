@@ -40,11 +40,9 @@ HAND_BOX = np.array([[458, 426, 492, 441]], float)
 class Probe:
     """Publishes images and records detections and diagnostics, in this process and the test's domain."""
 
-    def __init__(self, domain_id: int) -> None:
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("detector_test_probe", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+    def __init__(self, context) -> None:
+        self.node = rclpy.create_node("detector_test_probe", context=context)
+        self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.compressed = self.node.create_publisher(CompressedImage, "/camera/image_raw/compressed", RELIABLE)
         self.raw = self.node.create_publisher(Image, "/camera/image_raw", RELIABLE)
@@ -81,7 +79,6 @@ class Probe:
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _compressed(jpeg: bytes, sec: int) -> CompressedImage:
@@ -102,8 +99,8 @@ def _raw(encoding: str, height: int, width: int, step: int, data: bytes, sec: in
 
 
 @pytest.fixture
-def probe(ros_env, ask_service):
-    probe = Probe(int(ros_env["ROS_DOMAIN_ID"]))
+def probe(ros_context, ask_service):
+    probe = Probe(ros_context)
     probe.ask_service = ask_service
     yield probe
     probe.close()

@@ -3,8 +3,6 @@
 Needs the built workspace (rclpy, vessel_msgs, the installed `recorder` executable); skipped without it.
 """
 
-import os
-import random
 import signal
 import subprocess
 import time
@@ -51,12 +49,9 @@ def wait(predicate, executor, timeout_s):
     return predicate()
 
 
-def test_recorder_writes_a_readable_bag_after_sigint(tmp_path):
-    domain_id = random.randint(1, 100)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = rclpy.create_node("recorder_test_publisher", context=context)
-    executor = SingleThreadedExecutor(context=context)
+def test_recorder_writes_a_readable_bag_after_sigint(tmp_path, ros_env, ros_context):
+    node = rclpy.create_node("recorder_test_publisher", context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -78,7 +73,7 @@ def test_recorder_writes_a_readable_bag_after_sigint(tmp_path):
     camera_fix_pub.publish(camera_fix)  # before the recorder starts: it must still get it (transient local)
 
     output = tmp_path / "recording"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = ros_env
     topics = "['/vessel/fix', '/vessel/detections:vessel_msgs/msg/Detection2DArray', '/camera/fix', " \
              "'/camera/image_raw/compressed', '/notes']"
     process = subprocess.Popen(
@@ -123,7 +118,6 @@ def test_recorder_writes_a_readable_bag_after_sigint(tmp_path):
             process.wait()
         executor.shutdown()
         node.destroy_node()
-        rclpy.shutdown(context=context)
     assert process.returncode == 0, log
     assert "closed" in log and "Traceback" not in log
 

@@ -3,9 +3,6 @@
 Needs the built workspace (``source ros2_ws/install/setup.bash``); skipped otherwise.
 """
 import math
-import os
-import random
-import signal
 import subprocess
 import sys
 import time
@@ -30,14 +27,6 @@ def _executable(name):
     return str(path)
 
 
-def ros_env():
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
-
-
 def write_params(path, camera_block=None, extra=""):
     from vessel_calib.params import dump_params_yaml
     from vessel_track.simulation import challenge_camera
@@ -45,26 +34,6 @@ def write_params(path, camera_block=None, extra=""):
     camera = camera_block if camera_block is not None else challenge_camera().to_params()
     path.write_text(dump_params_yaml({"/**": {"camera": camera}}) + extra)
     return path
-
-
-def start(name, params, env, log_dir):
-    log = open(log_dir / f"{name}.log", "w")
-    return subprocess.Popen([_executable(name), "--ros-args", "--params-file", str(params)], env=env,
-                            stdout=log, stderr=subprocess.STDOUT)
-
-
-def stop(processes):
-    for p in processes:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    codes = []
-    for p in processes:
-        try:
-            codes.append(p.wait(timeout=15))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            codes.append(p.wait())
-    return codes
 
 
 def screen_tracks(camera, stamp, k, stamp_msg):
@@ -102,7 +71,7 @@ def screen_tracks(camera, stamp, k, stamp_msg):
     return out
 
 
-def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
+def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path, ros_context, start_node):
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
@@ -110,15 +79,11 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
     from vessel_msgs.msg import VesselTrackArray
     from vessel_track.simulation import challenge_camera
 
-    env = ros_env()
     params = write_params(tmp_path / "params.yaml")
-    processes = [start("fuser", params, env, tmp_path), start("gps_publisher", params, env, tmp_path)]
-    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("fix_consumer", context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    processes = [start_node("vessel_track", name, "--ros-args", "--params-file", str(params))
+                 for name in ("fuser", "gps_publisher")]
+    node = rclpy.create_node("fix_consumer", context=ros_context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     fixes, arrays = [], []
     node.create_subscription(NavSatFix, "/vessel/fix", fixes.append, reliable_qos(50))
@@ -133,8 +98,8 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and not predicate():
             executor.spin_once(timeout_sec=0.05)
-            assert all(p.poll() is None for p in processes), "a node died: " + "".join(
-                (tmp_path / f"{n}.log").read_text() for n in ("fuser", "gps_publisher"))
+            assert all(p.process.poll() is None for p in processes), "a node died: " + "".join(
+                p.output() for p in processes)
         return predicate()
 
     try:
@@ -158,9 +123,8 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
         spin_until(lambda: len(fixes) >= len(sent) + 1, 8.0)
     finally:
         node.destroy_node()
-        rclpy.shutdown(context=context)
-        codes = stop(processes)
-    logs = {n: (tmp_path / f"{n}.log").read_text() for n in ("fuser", "gps_publisher")}
+        codes = [p.stop() for p in processes]
+    logs = {p.name.split("/")[1]: p.output() for p in processes}
     assert codes == [0, 0], logs
     assert "Traceback" not in "".join(logs.values())
     by_stamp = {round(stamp_to_sec(f.header.stamp), 6): f for f in fixes}
@@ -188,8 +152,8 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path):
 
 
 @pytest.mark.parametrize("problem", ["missing", "singular", "not_yaml"])
-def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem):
-    env = ros_env()
+def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem, ros_env):
+    env = ros_env
     if problem == "missing":
         params = tmp_path / "nope.yaml"
     elif problem == "singular":
@@ -210,11 +174,11 @@ def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem):
 
 
 @pytest.mark.parametrize("problem", ["no_calibration", "no_H", "no_K1_nor_box_anchor"])
-def test_a_missing_calibration_or_calibration_key_refuses_to_start(tmp_path, problem):
+def test_a_missing_calibration_or_calibration_key_refuses_to_start(tmp_path, problem, ros_env):
     """A file without H used to run silently on the paper's homography (heading 76.5 degrees, not the file's)."""
     from vessel_track.simulation import challenge_camera
 
-    env = ros_env()
+    env = ros_env
     camera = challenge_camera().to_params()
     missing = {"no_calibration": list(camera), "no_H": ["H"], "no_K1_nor_box_anchor": ["K1", "box_anchor"]}[problem]
     kept = {k: v for k, v in camera.items() if k not in missing}
@@ -233,8 +197,8 @@ def test_a_missing_calibration_or_calibration_key_refuses_to_start(tmp_path, pro
 
 
 @pytest.mark.parametrize("problem", ["old_fusion_anchor", "box_anchor_outside_the_box"])
-def test_parameters_from_before_the_box_anchor_refuse_to_start(tmp_path, problem):
-    env = ros_env()
+def test_parameters_from_before_the_box_anchor_refuse_to_start(tmp_path, problem, ros_env):
+    env = ros_env
     from vessel_track.simulation import challenge_camera
 
     camera = dict(challenge_camera().to_params(), box_anchor=2.0 if problem == "box_anchor_outside_the_box" else 0.65)
@@ -247,37 +211,28 @@ def test_parameters_from_before_the_box_anchor_refuse_to_start(tmp_path, problem
     assert "camera.box_anchor" in done.stderr if problem == "old_fusion_anchor" else "box_anchor must be" in done.stderr
 
 
-def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
+def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path, ros_context, start_node):
     """Simulated detections -> tracker -> fuser -> gps_publisher, all separate processes.
 
     Three vessels, clutter and the mooring post; the consumer's fixes follow the vessel of interest within their
     covariance.
     """
-    import importlib.util
-
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
     from vessel_calib import geodesy
     from vessel_common.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
-
-    spec = importlib.util.spec_from_file_location("pipeline_tests", Path(__file__).with_name("test_pipeline.py"))
-    pipeline_tests = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(pipeline_tests)
     from vessel_track.node_params import render_fuser_yaml
+    from vessel_track.simulation import fuser_settings_of_simulation, vessel_of_interest_scenario
 
-    result = pipeline_tests.voi_scenario(seed=3).run()
+    result = vessel_of_interest_scenario(seed=3).run()
     camera = result.camera
-    env = ros_env()
     # The fusion parameters of the simulated world (its box-size model), as `distance_model fit` would find them.
-    params = write_params(tmp_path / "params.yaml", extra=render_fuser_yaml(pipeline_tests._sim_settings(camera)))
-    processes = [start(n, params, env, tmp_path) for n in ("tracker", "fuser", "gps_publisher")]
-    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("fix_consumer", context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    params = write_params(tmp_path / "params.yaml", extra=render_fuser_yaml(fuser_settings_of_simulation(camera)))
+    processes = [start_node("vessel_track", name, "--ros-args", "--params-file", str(params))
+                 for name in ("tracker", "fuser", "gps_publisher")]
+    node = rclpy.create_node("fix_consumer", context=ros_context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     fixes = []
     node.create_subscription(NavSatFix, "/vessel/fix", fixes.append, reliable_qos(100))
@@ -287,7 +242,8 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and not predicate():
             executor.spin_once(timeout_sec=0.05)
-            assert all(p.poll() is None for p in processes), "a node died"
+            assert all(p.process.poll() is None for p in processes), "a node died: " + "".join(
+                p.output() for p in processes)
         return predicate()
 
     try:
@@ -315,9 +271,8 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
             spin_until(lambda s=frame.stamp: any(abs(stamp_to_sec(f.header.stamp) - s) < 1e-6 for f in fixes), 8.0)
     finally:
         node.destroy_node()
-        rclpy.shutdown(context=context)
-        codes = stop(processes)
-    logs = "".join((tmp_path / f"{n}.log").read_text() for n in ("tracker", "fuser", "gps_publisher"))
+        codes = [p.stop() for p in processes]
+    logs = "".join(p.output() for p in processes)
     assert codes == [0, 0, 0], logs
     assert "Traceback" not in logs
     truth = result.truth[0]
@@ -343,11 +298,11 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path):
 
 
 @pytest.mark.parametrize("problem", ["missing_file", "calibration_without_a_level", "none"])
-def test_a_water_level_file_is_checked_at_start(tmp_path, problem):
+def test_a_water_level_file_is_checked_at_start(tmp_path, problem, ros_env, start_node, wait_until):
     """The tide needs a readable file and a calibration made with it; either missing refuses to start, in one line."""
     from vessel_track.simulation import challenge_camera
 
-    env = ros_env()
+    env = ros_env
     tide = tmp_path / "tide.csv"
     tide.write_text("utc,level_m\n2020-09-30T19:00:00Z,1.15\n2020-09-30T21:00:00Z,0.52\n")
     camera = challenge_camera().to_params()
@@ -357,15 +312,9 @@ def test_a_water_level_file_is_checked_at_start(tmp_path, problem):
     params = write_params(tmp_path / "p.yaml", camera_block=camera,
                           extra=f"fuser:\n  ros__parameters:\n    water_level:\n      file: {named}\n")
     if problem == "none":
-        process = start("fuser", params, env, tmp_path)
-        try:
-            deadline = time.monotonic() + 30
-            while "tide from" not in (tmp_path / "fuser.log").read_text() and time.monotonic() < deadline:
-                assert process.poll() is None, (tmp_path / "fuser.log").read_text()
-                time.sleep(0.2)
-        finally:
-            stop([process])
-        assert f"tide from {tide}" in (tmp_path / "fuser.log").read_text()
+        fuser = start_node("vessel_track", "fuser", "--ros-args", "--params-file", str(params))
+        wait_until(lambda: "tide from" in fuser.output() or fuser.process.poll() is not None, 30)
+        assert fuser.stop() == 0 and f"tide from {tide}" in fuser.output(), fuser.output()
         return
     done = subprocess.run([_executable("fuser"), "--ros-args", "--params-file", str(params)], env=env,
                           capture_output=True, text=True, timeout=60)

@@ -87,7 +87,7 @@ def _track_message(track_id, latitude=32.703, stamp_s=100):
     return track
 
 
-def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypatch):
+def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypatch, ros_context):
     """A stamp with nanosec >= 1e9 is invalid; two tracks flagged is_target (even with one id) are ambiguous."""
     import rclpy
     import rclpy.node
@@ -98,14 +98,13 @@ def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypa
     from vessel_msgs.msg import VesselTrackArray
     from vessel_track.gps_publisher_node import GpsPublisherNode
 
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=199)
+    context = ros_context
     node_init = rclpy.node.Node.__init__
     builtin = [rclpy.parameter.Parameter("camera.builtin_calibration", value=True)]
     monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, name, **kw: node_init(
         self, name, context=context, parameter_overrides=builtin, **kw))
+    node = GpsPublisherNode()
     try:
-        node = GpsPublisherNode()
         fixes = []
         node.fix_publisher.publish = fixes.append
 
@@ -124,6 +123,5 @@ def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypa
         frame(103, _track_message("T1", 95.0, stamp_s=103))
         assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX
         assert node.health.counts["impossible_position"] == 1
-        node.destroy_node()
     finally:
-        rclpy.shutdown(context=context)
+        node.destroy_node()

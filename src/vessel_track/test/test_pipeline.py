@@ -8,48 +8,11 @@ import numpy as np
 import pytest
 
 from vessel_track import pipeline as pl
-from vessel_track.distance_model import BoxSizeDistanceModel, depth_scale
 from vessel_track.fuser_settings import FuserSettings
-from vessel_track.fusion import fit_cue_statistics
 from vessel_track.simulation import (
-    BoxSizeModel,
-    LinePath,
-    Scenario,
-    SimVessel,
-    bearing_point,
+    fuser_settings_of_simulation,
+    vessel_of_interest_scenario,
 )
-
-
-def voi_scenario(seed: int, duration_s: float = 150.0) -> Scenario:
-    """A scene where the paper's score (confidence x log path) singles out vessel 0.
-
-    Vessel 0 runs 2.5 m/s across the view ~250-300 m out; a sailboat (1) barely moves ~180 m out; a launch (2)
-    crosses ~120 m out for a minute; clutter and the mooring post as the simulator's detector makes them.
-    """
-    vessels = [
-        SimVessel(0, LinePath(bearing_point(250.0, 52.0), heading_deg=167.0, speed_mps=2.5)),
-        SimVessel(1, LinePath(bearing_point(180.0, 80.0), heading_deg=10.0, speed_mps=0.3)),
-        SimVessel(2, LinePath(bearing_point(120.0, 100.0), heading_deg=-20.0, speed_mps=1.5), start_s=50.0,
-                  end_s=110.0),
-    ]
-    return Scenario(vessels=vessels, duration_s=duration_s, frame_interval_s=4.0, seed=seed)
-
-
-def _sim_settings(camera):
-    """Distance model from the simulator's box sizes; cue statistics measured on a separate training run."""
-    sim = BoxSizeModel()
-    n = depth_scale(camera)
-    model = BoxSizeDistanceModel(a=sim.a_w / n, b=sim.b_w, c=sim.a_h / n, d=sim.b_h, sigma_width_px=3.0,
-                                 sigma_height_px=1.5)
-    train = voi_scenario(seed=101).run()
-    boxes, world = [], []
-    for k, frame in enumerate(train.frames):
-        for box, gid in zip(frame.boxes_xyxy, frame.gt_ids, strict=True):
-            if gid >= 0:
-                boxes.append(box)
-                world.append(train.truth[int(gid)].world_xy[k])
-    stats = fit_cue_statistics(camera, model, np.array(boxes), np.array(world))
-    return FuserSettings(distance_model=model, cue_stats=stats)
 
 
 def _frames(result):
@@ -58,7 +21,7 @@ def _frames(result):
 
 @pytest.mark.parametrize("mode", ["online", "offline"])
 def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode):
-    result = voi_scenario(seed=7).run()
+    result = vessel_of_interest_scenario(seed=7).run()
     camera = result.camera
     truth = result.truth[0]
     index = {float(t): k for k, t in enumerate(truth.stamps)}
@@ -70,7 +33,7 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
                 xw, yw, ok = camera.screen_to_world((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
                 if ok:
                     raw.append(math.hypot(xw - truth.world_xy[k, 0], yw - truth.world_xy[k, 1]))
-    config = pl.PipelineConfig(mode=mode, screen_source="measured", settings=_sim_settings(camera))
+    config = pl.PipelineConfig(mode=mode, screen_source="measured", settings=fuser_settings_of_simulation(camera))
     (video,) = pl.run(_frames(result), camera, config)
     errors, on_target = [], 0
     for p in video.predictions:

@@ -6,11 +6,6 @@ ends it with status 0. Needs the built workspace (``source ros2_ws/install/setup
 """
 
 import math
-import os
-import random
-import signal
-import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +17,6 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: source ros
 vessel_msgs = pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: build ros2_ws first")
 
 REPO = Path(__file__).resolve().parents[3]
-EXECUTABLE = REPO / "ros2_ws" / "install" / "vessel_track" / "lib" / "vessel_track" / "tracker"
 PARAMS = REPO / "config" / "parts" / "tracker.yaml"
 
 
@@ -50,43 +44,20 @@ def detection_array(stamp, boxes, scores, class_id="boat"):
 
 
 @pytest.fixture
-def ros_graph(tmp_path):
-    if not EXECUTABLE.exists():
-        pytest.skip(f"{EXECUTABLE} is missing: build the workspace (colcon build --symlink-install)")
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
-    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    log = open(tmp_path / "tracker.log", "w")
-    process = subprocess.Popen([str(EXECUTABLE), "--ros-args", "--params-file", str(PARAMS)], env=env,
-                               stdout=log, stderr=subprocess.STDOUT)
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("tracker_test_driver", context=context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+def ros_graph(start_node, ros_context, wait_until):
+    """The tracker node started with its part file, and a driver node in this process (the shared fixtures)."""
+    tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS))
+    node = rclpy.create_node("tracker_test_driver", context=ros_context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
+
+    def spin_until(predicate, timeout_s):
+        return wait_until(predicate, timeout_s, spin=lambda: executor.spin_once(timeout_sec=0.05))
+
     try:
-        yield process, node, executor, tmp_path / "tracker.log"
+        yield tracker, node, spin_until
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
-        log.close()
         node.destroy_node()
-        rclpy.shutdown(context=context)
-
-
-def spin_until(executor, predicate, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        executor.spin_once(timeout_sec=0.05)
-    return predicate()
 
 
 def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
@@ -97,21 +68,21 @@ def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
     from vessel_track.simulation import harbour_scenario
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
-    process, node, executor, log_path = ros_graph
+    tracker, node, spin_until = ros_graph
     received: list = []
     diagnostics: list = []
     publisher = node.create_publisher(Detection2DArray, "/vessel/detections", reliable_qos(10))
     node.create_subscription(VesselTrackArray, "/vessel/tracks/screen", received.append, reliable_qos(10))
     node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
-    matched = spin_until(executor, lambda: publisher.get_subscription_count() >= 1
+    matched = spin_until(lambda: publisher.get_subscription_count() >= 1
                          and node.count_publishers("/vessel/tracks/screen") >= 1, 30.0)
-    assert matched, f"tracker node did not come up:\n{log_path.read_text()}"
+    assert matched, f"tracker node did not come up:\n{tracker.output()}"
 
     def send(stamp, boxes, scores):
         before = len(received)
         publisher.publish(detection_array(stamp, boxes, scores))
-        assert spin_until(executor, lambda: len(received) > before, 10.0), \
-            f"no tracks for stamp {stamp}:\n{log_path.read_text()}"
+        assert spin_until(lambda: len(received) > before, 10.0), \
+            f"no tracks for stamp {stamp}:\n{tracker.output()}"
         return received[-1]
 
     result = harbour_scenario(frame_interval_s=4.0, duration_s=100.0, seed=0).run()
@@ -157,13 +128,12 @@ def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
                     return {kv.key: kv.value for kv in status.values}
         return {}
 
-    assert spin_until(executor, lambda: counts().get("count.resets") == "1"
+    assert spin_until(lambda: counts().get("count.resets") == "1"
                       and counts().get("count.detections_invalid") == "2"
                       and counts().get("count.out_of_order_frames") == "1", 10.0), counts()
-    assert process.poll() is None, "the tracker node died on bad input"
-    process.send_signal(signal.SIGINT)
-    assert process.wait(timeout=15) == 0
-    log = log_path.read_text()
+    assert tracker.process.poll() is None, "the tracker node died on bad input"
+    log = tracker.output()
+    assert tracker.stop() == 0
     assert log.count("counted as 'detections_invalid'") == 1 and "Traceback" not in log
 
 
