@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -173,6 +174,9 @@ class GraphRunner:
             if running.log_file is not None:
                 running.log_file.close()
                 running.log_file = None
+        if names is None and self._temp_dir is not None:  # every node stopped: its overrides and state go too
+            shutil.rmtree(self._temp_dir, ignore_errors=True)
+            self._temp_dir = None
         return statuses
 
     def log_tail(self, name: str, lines: int = 20) -> str:

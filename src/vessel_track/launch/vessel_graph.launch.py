@@ -14,6 +14,7 @@ The per-run values go on each node's command line as ``-p name:=value``: launch_
 ignored. A parameter file that does not exist stops the launch with one line instead of running on defaults.
 """
 
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -52,6 +53,12 @@ def _nodes(context):
             nodes += _managed(graph_node.executable + "_managed", common)
         else:
             nodes.append(Node(executable=graph_node.executable, **common))
+    if state_dir is not None:  # the state files live as long as the launch
+        from launch.actions import RegisterEventHandler
+        from launch.event_handlers import OnShutdown
+
+        nodes.append(RegisterEventHandler(OnShutdown(on_shutdown=[
+            OpaqueFunction(function=lambda _context: shutil.rmtree(state_dir, ignore_errors=True))])))
     return nodes
 
 
