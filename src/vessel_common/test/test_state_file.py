@@ -6,7 +6,10 @@ That the tracker and the fuser carry on from their snapshots as if never stopped
 
 from __future__ import annotations
 
+import os
 import pickle
+import subprocess
+import sys
 
 import pytest
 
@@ -25,7 +28,6 @@ def test_a_snapshot_that_does_not_fit_is_a_cold_start_with_the_reason(tmp_path):
         fingerprint = settings_fingerprint(config or TrackerConfig())
         return StateFile(path, node, fingerprint, max_age_s=10.0).resume(stamp)
 
-    assert resumed(105.0)[0] == {"tracks": []}
     assert "other settings" in resumed(105.0, config=TrackerConfig(gate_px=55.0))[1]
     assert "not a fuser snapshot" in resumed(105.0, node="fuser")[1]
     assert "+20.0 s" in resumed(120.0)[1]   # too old: the vessel has moved on
@@ -33,6 +35,27 @@ def test_a_snapshot_that_does_not_fit_is_a_cold_start_with_the_reason(tmp_path):
     path.write_bytes(path.read_bytes()[:20])  # cut short
     state, why = resumed(105.0)
     assert state is None and "unreadable" in why
+
+
+def test_a_snapshot_is_resumed_once_so_a_state_that_crashes_the_node_cannot_loop(tmp_path):
+    path = tmp_path / "fuser.state"
+    StateFile(path, "fuser", "f").save(100.0, [1])
+    first = StateFile(path, "fuser", "f")
+    assert first.resume(101.0)[0] == [1]
+    state, why = StateFile(path, "fuser", "f").resume(102.0)  # it stopped again before writing a new one
+    assert state is None and "resumed once already" in why
+    first.save(103.0, [2])  # a node that carried on writes a new snapshot: that one can be resumed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fuser.state"]
+    assert StateFile(path, "fuser", "f").resume(104.0)[0] == [2]
+
+
+def test_the_fingerprint_of_a_set_is_the_same_in_every_process():
+    """Pickled sets follow the per-process string hash; a restarted node must still recognise its settings."""
+    code = ("from vessel_common.state_file import settings_fingerprint; "
+            "print(settings_fingerprint(frozenset({'boat', 'ship', 'kayak', 'vessel'}), 'vessel_of_interest'))")
+    prints = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                             env=dict(os.environ, PYTHONHASHSEED=str(seed))).stdout for seed in (1, 2, 3, 4)}
+    assert len(prints) == 1
 
 
 def test_snapshots_are_written_every_period_of_message_time_and_atomically(tmp_path):

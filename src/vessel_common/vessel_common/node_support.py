@@ -339,7 +339,7 @@ class NodeState:
 
     def resume(self, stamp: float, core) -> None:
         """At the first message after a start: restore ``core`` from the state file if it fits ``stamp``."""
-        if self.file is None or not self.file.pending:
+        if self.file is None or not self.file.pending or stamp <= 0.0:  # a zero stamp says nothing of the time
             return
         state, what = self.file.resume(stamp)
         if state is not None:

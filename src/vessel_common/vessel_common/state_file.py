@@ -28,7 +28,7 @@ STATE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
     "state_file": ("", "Snapshot of the node's tracks, written every state_period_s of message time and read back "
                    "at the first message after a start, so that a node restarted after a crash (respawn) carries "
                    "on instead of starting cold; '': none. A snapshot written with other settings, or more than "
-                   "state_max_age_s before the first message, is not used.", None),
+                   "state_max_age_s before the first message, is not used, and a snapshot is resumed only once.", None),
     "state_period_s": (0.5, "Message time between two snapshots of state_file (0: every message), s.",
                        (0.0, 3600.0)),
     "state_max_age_s": (60.0, "A snapshot older than this at the first message after a start is not used, s.",
@@ -38,7 +38,12 @@ STATE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
 
 
 def settings_fingerprint(*settings: object) -> str:
-    """A short hash of the settings a snapshot is only valid for (a changed setting means a cold start)."""
+    """A short hash of the settings a snapshot is only valid for (a changed setting means a cold start).
+
+    The same settings give the same hash in every process: sets are hashed sorted (their pickled order follows
+    the per-process string hash).
+    """
+    settings = tuple(sorted(value) if isinstance(value, (set, frozenset)) else value for value in settings)
     try:
         data = pickle.dumps(settings, protocol=4)
     except (pickle.PicklingError, TypeError, AttributeError):
@@ -61,10 +66,22 @@ class StateFile:
         self.pending = True  # resume not tried yet
         self._saved_stamp: float | None = None
 
+    @property
+    def resumed_path(self) -> Path:
+        """Where a snapshot goes once it has been resumed (it is never resumed twice)."""
+        return self.path.with_name(self.path.name + ".resumed")
+
     def resume(self, stamp: float) -> tuple[object | None, str]:
-        """The saved state if it is valid for a message stamped ``stamp``, else None; and what happened, in words."""
+        """The saved state if it is valid for a message stamped ``stamp``, else None; and what happened, in words.
+
+        A snapshot is resumed once: a node that stops again before it writes a new one starts cold the next time,
+        since the state it resumed may be what stopped it.
+        """
         self.pending = False
         if not self.path.is_file():
+            if self.resumed_path.is_file():
+                return None, (f"state file {self.path} was resumed once already and the node stopped again before "
+                              "writing a new one (the state may be what stopped it): cold start")
             return None, f"no state file {self.path}: cold start"
         try:
             with open(self.path, "rb") as stream:
@@ -80,6 +97,10 @@ class StateFile:
             return None, (f"state file {self.path} is {age:+.1f} s from the first message (resumed only within "
                           f"0..{self.max_age_s:g} s, state_max_age_s): cold start")
         self._saved_stamp = float(saved["stamp"])
+        try:
+            os.replace(self.path, self.resumed_path)
+        except OSError as error:
+            return None, f"state file {self.path} could not be marked as resumed ({error}): cold start"
         return saved["state"], f"resumed from state file {self.path}, saved {age:.2f} s before the first message"
 
     def due(self, stamp: float) -> bool:
@@ -104,4 +125,5 @@ class StateFile:
             os.replace(temporary, self.path)
         finally:
             temporary.unlink(missing_ok=True)
+        self.resumed_path.unlink(missing_ok=True)
         self._saved_stamp = float(stamp)

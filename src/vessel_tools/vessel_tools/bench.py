@@ -799,7 +799,7 @@ def _warnings(args, graph: dict, graph_run, log_dir: Path) -> list[str]:
     return warnings
 
 
-@command_line_tool
+@command_line_tool(interrupted="interrupted; every node was stopped")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; 0 when it ran, 2 on bad input (missing bag, model, data), 1 when the graph failed."""
     args = parse_args(argv)

@@ -124,7 +124,11 @@ def _graph_run(watcher: GraphWatcher, bag: Path, rate: float, log_dir: Path, env
         finally:
             if graph.poll() is None:
                 graph.send_signal(signal.SIGINT)
-                graph.wait(timeout=30)
+                try:
+                    graph.wait(timeout=30)
+                except subprocess.TimeoutExpired:  # its nodes are in its process group
+                    os.killpg(graph.pid, signal.SIGKILL)
+                    graph.wait()
     watcher.spin(0.5)  # the last fixes in flight
     run.stderr = (log_dir / "graph.stderr").read_text(errors="replace")
     for received, stamp, lat, lon in watcher.fixes:

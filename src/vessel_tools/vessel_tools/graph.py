@@ -270,7 +270,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 @command_line_tool
-@command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph until Ctrl-C (or the end of the source with --exit-at-end)."""
     args = parse_args(argv)

@@ -371,4 +371,16 @@ def test_a_tracker_and_fuser_restored_from_their_files_carry_on_as_if_never_stop
         assert state is not None and why.startswith("resumed"), why
         core.restore(state)
     after = _run_tracker_and_fuser(frames[half:], tracker, fuser)
+    # Tracks started after the restart are numbered max_tracks further on, past any published before the crash.
+    known = {track_id for frame in before for track_id, _, _, _ in frame}
+
+    def renumbered(track_id):
+        if track_id in known:
+            return track_id
+        number = int(track_id[len(config.id_prefix):])
+        assert number > config.max_tracks, track_id
+        return f"{config.id_prefix}{number - config.max_tracks}"
+
+    after = [[(renumbered(t), *rest) for t, *rest in frame] for frame in after]
+    assert any(t not in known for frame in after for t, _, _, _ in frame)
     assert before + after == straight

@@ -474,11 +474,15 @@ class MultiTargetTracker:
                 "last_stamp": self._last_stamp}
 
     def restore(self, snapshot: dict) -> None:
-        """Carry on from ``snapshot()`` of a tracker with the same config (a node restarted after a crash)."""
+        """Carry on from ``snapshot()`` of a tracker with the same config (a node restarted after a crash).
+
+        New ids start ``max_tracks`` past the snapshot's, beyond any track started between it and the crash.
+        """
         tracks, ended = list(snapshot["tracks"]), dict(snapshot["ended"])
         next_id, last_stamp = int(snapshot["next_id"]), snapshot["last_stamp"]
         self._tracks, self._ended, self._last_stamp = tracks, ended, last_stamp
-        self._next_id = max(self._next_id, next_id)
+        # Tracks started after the snapshot were published before the crash: their ids are not given again.
+        self._next_id = max(self._next_id, next_id + self.config.max_tracks)
 
     def history(self, track_id: str) -> TrackHistory:
         """History of a live track, or of one reported LOST by the latest update; KeyError otherwise."""

@@ -220,7 +220,7 @@ class TrackerNode(Node):
         self.tracker = MultiTargetTracker(config)
         self.health = NodeHealth(self)
         self.state = NodeState(self, self.health, "tracker",
-                               settings_fingerprint(config, self.classes, self.confidence_class))
+                               settings_fingerprint(config, sorted(self.classes or ()), self.confidence_class))
         self._reported = TrackerCounters()
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
