@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from vessel_common.errors import DataError
-from vessel_common.state_file import StateFile, settings_fingerprint
+from vessel_common.state_file import StateFile, remove_state_file, settings_fingerprint
 from vessel_track.tracker import TrackerConfig
 
 
@@ -47,6 +47,8 @@ def test_a_snapshot_is_resumed_once_so_a_state_that_crashes_the_node_cannot_loop
     first.save(103.0, [2])  # a node that carried on writes a new snapshot: that one can be resumed
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fuser.state"]
     assert StateFile(path, "fuser", "f").resume(104.0)[0] == [2]
+    remove_state_file(path)  # what a new run does first: neither the snapshot nor its marker is left
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_the_fingerprint_of_a_set_is_the_same_in_every_process():

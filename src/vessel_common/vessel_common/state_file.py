@@ -51,6 +51,17 @@ def settings_fingerprint(*settings: object) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
+def remove_state_file(path: Path) -> None:
+    """Remove a node's snapshot and its resumed marker (a new run starts cold)."""
+    for stale in (Path(path), resumed_path(Path(path))):
+        stale.unlink(missing_ok=True)
+
+
+def resumed_path(path: Path) -> Path:
+    """Where a snapshot goes once it has been resumed (it is never resumed twice)."""
+    return path.with_name(path.name + ".resumed")
+
+
 @dataclass
 class StateFile:
     """One node's snapshot file: ``resume`` once at the first message, then ``save`` whenever ``due``."""
@@ -68,8 +79,8 @@ class StateFile:
 
     @property
     def resumed_path(self) -> Path:
-        """Where a snapshot goes once it has been resumed (it is never resumed twice)."""
-        return self.path.with_name(self.path.name + ".resumed")
+        """Where this snapshot goes once it has been resumed."""
+        return resumed_path(self.path)
 
     def resume(self, stamp: float) -> tuple[object | None, str]:
         """The saved state if it is valid for a message stamped ``stamp``, else None; and what happened, in words.

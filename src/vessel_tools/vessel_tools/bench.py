@@ -606,6 +606,15 @@ def _json_safe(value):
     return value
 
 
+def print_and_save(table: str, result: dict, out: Path | None) -> int:
+    """A benchmark's end: its table on stdout; with ``--out`` its figures as JSON, said on stderr. Exit status 0."""
+    print(table)
+    if out is not None:
+        write_json(out, result)
+        log(f"figures written to {out}")
+    return 0
+
+
 def write_json(path: Path, result: dict) -> None:
     """Write the result atomically (temp file + rename); non-finite numbers become null, paths strings."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -808,11 +817,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GraphError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    print(format_table(result))
-    if args.out is not None:
-        write_json(args.out, result)
-        log(f"figures written to {args.out}")
-    return 0
+    return print_and_save(format_table(result), result, args.out)
 
 
 if __name__ == "__main__":

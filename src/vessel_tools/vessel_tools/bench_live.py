@@ -31,7 +31,7 @@ from vessel_calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir
-from vessel_tools.bench import GraphError, GraphSession, _domain_id, log, machine_info, summary_ms, write_json
+from vessel_tools.bench import GraphError, GraphSession, _domain_id, log, machine_info, print_and_save, summary_ms
 from vessel_tools.graph import default_calibration_file, default_params_file
 from vessel_tools.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
 from vessel_tools.proc_monitor import node_pid, read_proc
@@ -212,11 +212,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: 0 done, 2 bad input or a graph that failed, 130 interrupted."""
     args = parse_args(argv)
     result = run(args)
-    print(format_report(result))
-    if args.out is not None:
-        write_json(args.out, result)
-        print(f"wrote {args.out}")
-    return 0
+    return print_and_save(format_report(result), result, args.out)
 
 
 if __name__ == "__main__":

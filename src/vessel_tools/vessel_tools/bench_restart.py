@@ -38,7 +38,7 @@ from vessel_calib import geodesy
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir
-from vessel_tools.bench import _domain_id, log, machine_info, write_json
+from vessel_tools.bench import _domain_id, log, machine_info, print_and_save
 from vessel_tools.graph_watcher import GraphWatcher
 from vessel_track.offline_data import open_dataset
 
@@ -148,13 +148,12 @@ def _kill(node: str, log_dir: Path) -> float:
     return killed_at
 
 
-def _truth_errors(args: argparse.Namespace, run: Run) -> dict[int, float]:
-    """Each fix's distance to the vessel's GPS at its stamp (m), where the dataset has it; {} for --source."""
-    if args.source is not None or not run.fixes:
+def _truth_errors(gps_track, run: Run) -> dict[int, float]:
+    """Each fix's distance to the vessel's GPS at its stamp (m), where the track has it; {} without a track."""
+    if gps_track is None or not run.fixes:
         return {}
-
     stamps = sorted(run.fixes)
-    lat, lon, valid = open_dataset(args.data).gps_track().interpolate(np.array(stamps) / 1e9, max_gap_s=3.0)
+    lat, lon, valid = gps_track.interpolate(np.array(stamps) / 1e9, max_gap_s=3.0)
     return {stamp: float(geodesy.haversine_m(*run.fixes[stamp], lat[i], lon[i]))
             for i, stamp in enumerate(stamps) if valid[i]}
 
@@ -199,7 +198,8 @@ def run(args: argparse.Namespace) -> dict:
         if len(reference.fixes) <= args.kill_after:
             raise VesselError(f"the uninterrupted run gave {len(reference.fixes)} fixes: nothing left to measure "
                               f"after --kill-after {args.kill_after}; logs in {work / 'reference'}")
-        reference_errors = _truth_errors(args, reference)
+        gps_track = None if args.source is not None else open_dataset(args.data).gps_track()
+        reference_errors = _truth_errors(gps_track, reference)
         results = []
         for node in args.node_list:
             for cold in ((False, True) if args.compare_cold else (False,)):
@@ -208,7 +208,8 @@ def run(args: argparse.Namespace) -> dict:
                     log(f"kill -9 {node} after {args.kill_after} fixes ({mode}, run {repeat + 1} of {args.repeat})")
                     folder = work / f"{node}_{'cold' if cold else 'state'}_{repeat + 1}"
                     one = _graph_run(watcher, bag, args.rate, folder, env, node, args.kill_after, cold)
-                    results.append(_figures(reference, one, node, cold, _truth_errors(args, one), reference_errors))
+                    results.append(_figures(reference, one, node, cold, _truth_errors(gps_track, one),
+                                           reference_errors))
                     log(json.dumps(results[-1]))
     finally:
         watcher.close()
@@ -242,11 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; print the table (and write JSON with --out)."""
     args = parse_args(argv)
     result = run(args)
-    print(format_report(result))
-    if args.out is not None:
-        write_json(args.out, result)
-        print(f"wrote {args.out}")
-    return 0
+    return print_and_save(format_report(result), result, args.out)
 
 
 if __name__ == "__main__":

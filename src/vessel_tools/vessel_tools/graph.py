@@ -24,6 +24,7 @@ import yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
 from vessel_common.paths import repo_root
+from vessel_common.state_file import remove_state_file
 from vessel_tools.graph_watcher import GraphWatcher
 from vessel_track.graph_nodes import (
     GRAPH_NODES,
@@ -133,7 +134,7 @@ class GraphRunner:
     def state_file(self, name: str) -> Path:
         """Where a node keeps its ``state_file`` for this run (removed first: a new run starts cold)."""
         path = self._overrides_dir() / f"{name}.state"
-        path.unlink(missing_ok=True)
+        remove_state_file(path)
         return path
 
     def _overrides_dir(self) -> Path:

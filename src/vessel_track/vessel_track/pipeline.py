@@ -461,7 +461,6 @@ def _frames_and_settings(args, dataset, videos, camera, camera_source: str, para
     else:
         frames = csv_detections(Path(args.detections), dataset, videos)
         if args.appearance is not None:
-
             model = appearance.AppearanceModel.load(args.appearance)
             frames = appearance.rescore(frames, dataset, videos, lambda _video: model,
                                         args.appearance_combine, args.appearance_min, camera,
@@ -495,7 +494,6 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{sum(len(r.predictions) for r in results)} predictions from {len(frames)} frames "
           f"({args.mode}, camera: {camera_source}, parameters: {params_path or 'defaults'}) -> {args.out}")
     if not args.no_eval:
-
         coverage_frames = "labels" if args.detections == "labels" else "frames"
         summary = evaluate(args.out / "predictions.csv", dataset.path, videos, args.out, args.calib,
                            coverage_frames, not args.no_plots)
