@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -42,8 +43,13 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
 @pytest.mark.ros
 @pytest.mark.data
 @pytest.mark.slow
-def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, ros_env, tmp_path):
-    """``--respawn``: the tracker killed mid-run is restarted, resumes from its state file, and fixes flow again."""
+@pytest.mark.parametrize("hot_standby", [False, True], ids=["restart", "hot-standby"])
+def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, ros_env, tmp_path, hot_standby):
+    """``--respawn``: the tracker killed mid-run is restarted, resumes from its state file, and fixes flow again.
+
+    With ``--hot-standby`` its spare, which tracked every frame without publishing, takes over at the next frame:
+    nothing is lost and nothing was published twice.
+    """
     import signal
     import time
 
@@ -56,7 +62,8 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
     logs, recording = tmp_path / "logs", tmp_path / "recording"
     graph = subprocess.Popen([sys.executable, "-m", "vessel_tools.graph", "--source", str(bags / "video_15"),
                               "--rate", "2", "--exit-at-end", "--respawn", "--record", str(recording), "--log-dir",
-                              str(logs)], env=ros_env, stderr=subprocess.PIPE, text=True)
+                              str(logs)] + (["--hot-standby"] if hot_standby else []),
+                             env=ros_env, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
         camera_log = logs / "camera.log"
@@ -74,13 +81,20 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
         if graph.poll() is None:
             graph.send_signal(signal.SIGINT)
             graph.wait(timeout=30)
-    assert "tracker exited with status -9: restarting it" in stderr, stderr[-2000:]
-    tracker_log = (logs / "tracker.log").read_text(errors="replace")
-    assert "resumed from state file" in tracker_log, tracker_log[-2000:]  # its tracks, not a cold start
     print(f"graph ended {time.monotonic() - killed_at:.1f} s after the kill")
     fixes = BagReader(recording).message_count("/vessel/tracks")
     images = BagReader(bags / "video_15").message_count("/camera/image_raw/compressed")
-    assert fixes >= images - 12, f"{fixes} frames out of the fuser for {images} images"
+    if hot_standby:
+        promoted = re.search(r"tracker exited with status -9: promoted its hot standby /standby_(\d+)/tracker", stderr)
+        assert promoted, stderr[-2000:]
+        spare_log = (logs / f"tracker.standby_{promoted.group(1)}.log").read_text(errors="replace")
+        assert "promoted from standby: publishing from now on" in spare_log, spare_log[-2000:]
+        assert images - 1 <= fixes <= images, f"{fixes} frames out of the fuser for {images} images"
+    else:
+        assert "tracker exited with status -9: restarting it" in stderr, stderr[-2000:]
+        tracker_log = (logs / "tracker.log").read_text(errors="replace")
+        assert "resumed from state file" in tracker_log, tracker_log[-2000:]  # its tracks, not a cold start
+        assert fixes >= images - 12, f"{fixes} frames out of the fuser for {images} images"
 
 
 def test_restarts_back_off():

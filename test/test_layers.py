@@ -36,8 +36,8 @@ _BY_LAYER = {
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.appearance_model vessel_detect.detector
                vessel_detect.model_store vessel_detect.detector_params vessel_detect.detections_csv
-               vessel_detect.recall vessel_track.tracker vessel_track.fusion vessel_track.selection
-               vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
+               vessel_detect.recall vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
+               vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings""",
     "ros": """vessel_common.node_support vessel_calib.camera_parameters vessel_detect.bag_io
               vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params vessel_track.graph_nodes""",

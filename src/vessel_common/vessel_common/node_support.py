@@ -8,6 +8,7 @@ that stop the node at start with one clear line.
 
 from __future__ import annotations
 
+import importlib
 import math
 import signal
 import sys
@@ -31,7 +32,7 @@ from rclpy.qos import (
 )
 
 from vessel_common.errors import DataError, VesselError
-from vessel_common.state_file import STATE_PARAMETERS, StateFile
+from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
 """Best effort, keep last 5: images and other high-rate data where the newest sample matters most."""
@@ -362,6 +363,48 @@ class NodeState:
                                  "would start cold: check state_file's folder")
 
 
+class Standby:
+    """The ``standby`` parameter of a node that can wait as a hot spare of another process.
+
+    A spare subscribes, runs its core on every message and is discovered by the rest of the graph like the
+    active node, so promoting it costs no start-up and no discovery. Promotion is ``standby:=false`` (``ros2
+    param set``) or SIGUSR1; the signal only raises a flag, acted on at the node's next message.
+    """
+
+    def __init__(self, node: Node):
+        self._node = node
+        self.active = not bool(declare_parameter(node, "standby", False, STANDBY_DESCRIPTION))
+        self._promotion_requested = False
+        node.add_on_set_parameters_callback(self._on_set_parameters)
+        if not self.active and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGUSR1, self._on_signal)
+
+    def _on_signal(self, signum, frame) -> None:
+        self._promotion_requested = True
+
+    def _on_set_parameters(self, parameters):
+        from rcl_interfaces.msg import SetParametersResult
+
+        for parameter in parameters:
+            if parameter.name != "standby":
+                continue
+            if parameter.value and self.active:
+                return SetParametersResult(successful=False, reason="a promoted node stays active: stop it instead")
+            if not parameter.value and not self.active:
+                self.active = True
+                self._node.get_logger().info("promoted from standby: publishing from now on")
+        return SetParametersResult(successful=True)
+
+    def publishing(self) -> bool:
+        """Whether to publish (and save state) now; carries out a promotion SIGUSR1 asked for."""
+        if self._promotion_requested and not self.active:
+            from rclpy.parameter import Parameter
+
+            self._promotion_requested = False
+            self._node.set_parameters([Parameter("standby", value=False)])
+        return self.active
+
+
 def _ignore_late_sigint() -> None:
     """Ignore SIGINT once the exit status is decided.
 
@@ -372,13 +415,43 @@ def _ignore_late_sigint() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+class _Preloader:
+    """Imports modules in a background thread while the node starts and connects.
+
+    ``check()`` turns a failed import into a ``VesselError`` in the thread that runs the node, so a missing
+    library still stops the node at start-up with one clear line.
+    """
+
+    def __init__(self, modules: Sequence[str]):
+        self.failure: str | None = None
+        self.thread = threading.Thread(target=self._import, args=(tuple(modules),), name="preload", daemon=True)
+        self.thread.start()
+
+    def _import(self, modules: tuple[str, ...]) -> None:
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except Exception as error:  # reported by check() in the node's thread
+                self.failure = (f"cannot import {name} ({type(error).__name__}: {error}): install the "
+                                "requirements with ./vessel setup")
+                return
+
+    def check(self) -> None:
+        if self.failure is not None:
+            raise VesselError(self.failure)
+
+
 def run_node(
     node_factory: Callable[[], Node],
     args: Sequence[str] | None = None,
     *,
     threads: int = 1,
+    preload: Sequence[str] = (),
 ) -> int:
     """Run a node until SIGINT or shutdown, the same way for every executable of the project.
+
+    ``preload`` names modules the node needs only once messages arrive; they are imported in the background
+    once the node exists, while it is being discovered (see ``vessel_track.deferred_imports``).
 
     Returns the process exit status: 0 after SIGINT or a node that finished its work, 2 when the node could
     not start because of a ``VesselError`` (printed as one ``error:`` line naming the problem and the fix).
@@ -396,10 +469,12 @@ def run_node(
               "(e.g. -p name:=value, --params-file FILE).", file=sys.stderr)
         return 2
     node = None
+    preloader = None
     status = 0
     _command_line[:] = list(args if args is not None else sys.argv)
     try:
         node = node_factory()
+        preloader = _Preloader(preload) if preload else None  # after the node: its entities are announced first
         _apply_command_line_sim_time(node, _command_line)
         unknown = unknown_command_line_parameters(node, _command_line)
         if unknown:
@@ -415,6 +490,8 @@ def run_node(
         executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
         executor.add_node(node)
         while rclpy.ok() and not getattr(node, "finished", False):
+            if preloader is not None:
+                preloader.check()
             executor.spin_once(timeout_sec=0.1)
         status = int(getattr(node, "exit_status", 0))
     except VesselError as error:

@@ -36,6 +36,11 @@ STATE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
 }
 """The parameters of a node with a state file (tracker, fuser): name -> (default, description, float range)."""
 
+STANDBY_DESCRIPTION = ("Hot standby: process every message but publish nothing and write no state file until "
+                       "promoted (set to false, or SIGUSR1, which ./vessel graph --hot-standby sends when the active "
+                       "node dies). A promoted node stays active.")
+"""The ``standby`` parameter of the tracker, the fuser and the GPS publisher (``node_support.Standby``)."""
+
 
 def settings_fingerprint(*settings: object) -> str:
     """A short hash of the settings a snapshot is only valid for (a changed setting means a cold start).

@@ -27,7 +27,7 @@ def test_time_to_the_next_fix_lost_fixes_and_deviation_from_the_uninterrupted_ru
                stderr="[graph] tracker exited with status -9: restarting it (restart 1 of at most 5)")
     for stamp in (24, 28, 32, 36):
         run.fixes[stamp * S] = (32.7 + 1e-5, -117.23)
-    figures = bench_restart._figures(reference, run, "tracker", cold=False, errors={}, reference_errors={})
+    figures = bench_restart._figures(reference, run, "tracker", mode="state file", errors={}, reference_errors={})
     assert figures["next_fix_s"] == pytest.approx(2.7)
     assert figures["fixes_lost"] == 2 and figures["fixes_expected_after_kill"] == 6
     assert figures["fixes_compared"] == 4 and figures["max_deviation_m_first_fixes"] == pytest.approx(1.11, abs=0.01)
@@ -40,7 +40,7 @@ def test_errors_against_the_gps_count_the_fixes_worse_than_the_uninterrupted_run
     run = _run([0, 4, 8], [0.0, 2.5, 3.0], killed_at=0.5)
     errors = {4 * S: 12.0, 8 * S: 3.0}
     reference_errors = {4 * S: 5.0, 8 * S: 3.5}
-    figures = bench_restart._figures(reference, run, "fuser", cold=True, errors=errors,
+    figures = bench_restart._figures(reference, run, "fuser", mode="cold", errors=errors,
                                      reference_errors=reference_errors)
     assert figures["fixes_worse_than_uninterrupted_by_over_5m"] == 1 and figures["restart"] == "cold"
     assert figures["mean_error_m_first_fixes"] == 7.5 and figures["mean_error_m_uninterrupted_same_stamps"] == 4.25
@@ -53,7 +53,17 @@ def test_the_report_gives_median_and_worst_per_node_and_mode():
             for t in (1.5, 2.0, 4.0)]
     text = bench_restart.format_report({"bag": "B", "rate": 4.0, "reference_fixes": 36, "kill_after": 10,
                                         "runs": runs})
-    assert "tracker       state file    2.00 / 4.00  (3 runs)" in text
+    assert "tracker       state file                2.00 / 4.00  (3 runs)" in text
+
+
+def test_a_promoted_hot_standby_counts_as_the_restart():
+    reference = _run([0, 4, 8], [0.0, 1.0, 2.0])
+    run = _run([0, 4, 8], [0.0, 1.0, 2.0], killed_at=0.5,
+               stderr="[graph] fuser exited with status -9: promoted its hot standby /standby_2/fuser (restart 1 of "
+                      "at most 5); starting a new standby")
+    figures = bench_restart._figures(reference, run, "fuser", mode="hot standby, state file", errors={},
+                                     reference_errors={})
+    assert figures["restarted"] and figures["restart"] == "hot standby, state file" and figures["fixes_lost"] == 0
 
 
 @pytest.mark.parametrize("argv, says", [(["--nodes", "camera"], "unknown"), (["--kill-after", "0"], "at least 1"),

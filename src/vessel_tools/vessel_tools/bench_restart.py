@@ -73,6 +73,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "varies from run to run; default 1)")
     parser.add_argument("--compare-cold", action="store_true", help="also measure each node restarted cold "
                         "(--no-state-files)")
+    parser.add_argument("--hot-standby", action="store_true", help="run the graph with --hot-standby: the killed "
+                        "node is replaced by its spare instead of a new process")
     parser.add_argument("--out", type=Path, default=None, help="also write the figures as JSON here")
     args = parser.parse_args(argv)
     args.node_list = [n.strip() for n in args.nodes.split(",") if n.strip()]
@@ -100,13 +102,14 @@ def _bag(args: argparse.Namespace, work: Path) -> Path:
 
 
 def _graph_run(watcher: GraphWatcher, bag: Path, rate: float, log_dir: Path, env: dict[str, str], kill: str | None,
-               kill_after: int, cold: bool) -> Run:
+               kill_after: int, cold: bool, hot_standby: bool = False) -> Run:
     """One run of ``./vessel graph --respawn`` to the end of the bag, killing ``kill`` after ``kill_after`` fixes."""
     watcher.fixes.clear()
     run = Run()
     log_dir.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, "-m", "vessel_tools.graph", "--source", str(bag), "--rate", f"{rate:g}",
-               "--exit-at-end", "--respawn", "--log-dir", str(log_dir)] + (["--no-state-files"] if cold else [])
+               "--exit-at-end", "--respawn", "--log-dir", str(log_dir)] + (["--no-state-files"] if cold else []) + (
+                   ["--hot-standby"] if hot_standby else [])
     with open(log_dir / "graph.stderr", "w") as stderr:
         graph = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr, text=True,
                                  start_new_session=True)
@@ -158,7 +161,7 @@ def _truth_errors(gps_track, run: Run) -> dict[int, float]:
             for i, stamp in enumerate(stamps) if valid[i]}
 
 
-def _figures(reference: Run, run: Run, node: str, cold: bool, errors: dict[int, float],
+def _figures(reference: Run, run: Run, node: str, mode: str, errors: dict[int, float],
              reference_errors: dict[int, float]) -> dict:
     assert run.killed_at is not None
     after = [(t, stamp) for t, stamp in run.arrivals if t > run.killed_at]
@@ -171,7 +174,7 @@ def _figures(reference: Run, run: Run, node: str, cold: bool, errors: dict[int, 
     scored = [s for _, s in after if s in errors and s in reference_errors][:FIRST_AFTER]
     excess = [errors[s] - reference_errors[s] for s in scored]
     return {
-        "node": node, "restart": "cold" if cold else "state file",
+        "node": node, "restart": mode,
         "next_fix_s": round(next_fix_s, 2),
         "fixes_lost": len(lost), "fixes_expected_after_kill": len(expected),
         "max_deviation_m_first_fixes": round(max(deviations), 2) if deviations else math.nan,
@@ -180,7 +183,8 @@ def _figures(reference: Run, run: Run, node: str, cold: bool, errors: dict[int, 
         "mean_error_m_first_fixes": round(float(np.mean([errors[s] for s in scored])), 2) if scored else math.nan,
         "mean_error_m_uninterrupted_same_stamps": (round(float(np.mean([reference_errors[s] for s in scored])), 2)
                                                    if scored else math.nan),
-        "restarted": f"{node} exited with status -9: restarting it" in run.stderr,
+        "restarted": (f"{node} exited with status -9: restarting it" in run.stderr
+                      or f"{node} exited with status -9: promoted its hot standby" in run.stderr),
     }
 
 
@@ -194,7 +198,7 @@ def run(args: argparse.Namespace) -> dict:
     watcher = GraphWatcher(domain_id)
     try:
         log(f"uninterrupted run of {bag} at rate {args.rate:g}")
-        reference = _graph_run(watcher, bag, args.rate, work / "reference", env, None, 0, False)
+        reference = _graph_run(watcher, bag, args.rate, work / "reference", env, None, 0, False, args.hot_standby)
         if len(reference.fixes) <= args.kill_after:
             raise VesselError(f"the uninterrupted run gave {len(reference.fixes)} fixes: nothing left to measure "
                               f"after --kill-after {args.kill_after}; logs in {work / 'reference'}")
@@ -204,11 +208,12 @@ def run(args: argparse.Namespace) -> dict:
         for node in args.node_list:
             for cold in ((False, True) if args.compare_cold else (False,)):
                 for repeat in range(args.repeat):
-                    mode = "cold" if cold else "state file"
+                    mode = ("hot standby, " if args.hot_standby else "") + ("cold" if cold else "state file")
                     log(f"kill -9 {node} after {args.kill_after} fixes ({mode}, run {repeat + 1} of {args.repeat})")
                     folder = work / f"{node}_{'cold' if cold else 'state'}_{repeat + 1}"
-                    one = _graph_run(watcher, bag, args.rate, folder, env, node, args.kill_after, cold)
-                    results.append(_figures(reference, one, node, cold, _truth_errors(gps_track, one),
+                    one = _graph_run(watcher, bag, args.rate, folder, env, node, args.kill_after, cold,
+                                     args.hot_standby)
+                    results.append(_figures(reference, one, node, mode, _truth_errors(gps_track, one),
                                            reference_errors))
                     log(json.dumps(results[-1]))
     finally:
@@ -221,10 +226,10 @@ def format_report(result: dict) -> str:
     """The figures as a table: one row per run, then the median and worst time to the next fix per node and mode."""
     lines = [f"bag {result['bag']} at rate {result['rate']:g}: {result['reference_fixes']} fixes uninterrupted; "
              f"kill -9 after {result['kill_after']}",
-             f"{'node':<14}{'restart':<12}{'next fix s':>11}{'lost':>6}{'max dev m':>11}{'error m':>9}"
+             f"{'node':<14}{'restart':<24}{'next fix s':>11}{'lost':>6}{'max dev m':>11}{'error m':>9}"
              f"{'uninterrupted m':>17}{'worse >5 m':>12}"]
     for r in result["runs"]:
-        lines.append(f"{r['node']:<14}{r['restart']:<12}{r['next_fix_s']:>11.2f}{r['fixes_lost']:>6}"
+        lines.append(f"{r['node']:<14}{r['restart']:<24}{r['next_fix_s']:>11.2f}{r['fixes_lost']:>6}"
                      f"{r['max_deviation_m_first_fixes']:>11.2f}{r['mean_error_m_first_fixes']:>9.2f}"
                      f"{r['mean_error_m_uninterrupted_same_stamps']:>17.2f}"
                      f"{r['fixes_worse_than_uninterrupted_by_over_5m']:>12}")
@@ -233,7 +238,7 @@ def format_report(result: dict) -> str:
         groups.setdefault((r["node"], r["restart"]), []).append(r["next_fix_s"])
     lines.append("next fix after the kill, median / worst (s):")
     for (node, restart), times in groups.items():
-        lines.append(f"  {node:<14}{restart:<12}{float(np.median(times)):>6.2f} / {max(times):.2f}  "
+        lines.append(f"  {node:<14}{restart:<24}{float(np.median(times)):>6.2f} / {max(times):.2f}  "
                      f"({len(times)} runs)")
     return "\n".join(lines)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import yaml
 
+from vessel_calib.params import node_blocks, read_params_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
 from vessel_common.paths import repo_root
@@ -30,6 +31,7 @@ from vessel_track.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
     RECORDER,
+    STANDBY_NODES,
     STATEFUL_NODES,
     GraphNode,
     restart_delay_s,
@@ -70,6 +72,7 @@ class RunningNode:
     log_file: object = field(default=None, repr=False)
     parameters: dict[str, object] | None = None
     restarts: int = 0
+    namespace: str = ""
 
 
 class GraphRunner:
@@ -90,6 +93,9 @@ class GraphRunner:
         self.env = dict(env if env is not None else os.environ)
         self.echo = echo
         self.running: dict[str, RunningNode] = {}
+        self.spares: dict[str, RunningNode] = {}
+        self.spares_wanted: set[str] = set()
+        self._spares_started = 0
         self._temp_dir: Path | None = None
 
     def start(self, node: GraphNode, parameters: dict[str, object] | None = None,
@@ -106,21 +112,69 @@ class GraphRunner:
             overrides = self._overrides_dir() / f"{node.name}.overrides.yaml"
             overrides.write_text(yaml.safe_dump({node.name: {"ros__parameters": dict(parameters)}}))
             args += ["--params-file", str(overrides)]
-        log_file = None
-        log_path = None
-        if self.log_dir is not None:
-            self.log_dir.mkdir(parents=True, exist_ok=True)
-            log_path = self.log_dir / f"{node.name}.log"
-            log_file = open(log_path, "a" if append_log else "w")
-        stdout = None if self.echo and log_file is None else (log_file or subprocess.DEVNULL)
-        process = subprocess.Popen(args, env=self.env, stdout=stdout, stderr=subprocess.STDOUT,
-                                   start_new_session=True)
-        running = RunningNode(node, process, log_path, log_file, dict(parameters) if parameters else None)
+        running = self._spawn(node, args, node.name, append_log, parameters)
         previous = self.running.get(node.name)
         if previous is not None:
             running.restarts = previous.restarts
         self.running[node.name] = running
         return running
+
+    def start_spare(self, name: str) -> RunningNode:
+        """Start a hot standby of the running node ``name`` (``vessel_common.node_support.Standby``).
+
+        Same executable, parameters and topics, in its own namespace (``/standby_N``) with ``standby:=true``: it
+        is discovered and runs its core on every message now, so promoting it costs neither start-up nor
+        discovery. The node's blocks of the parameter files are copied under its namespaced name, which they
+        would not match otherwise.
+        """
+        active = self.running[name]
+        self._spares_started += 1
+        namespace = f"/standby_{self._spares_started}"
+        parameters: dict[str, object] = {}
+        for path in self.params_files:
+            for block in node_blocks(read_params_yaml(path), name)[1:]:  # the /** block applies as it is
+                parameters.update(block)
+        parameters.update(active.parameters or {})
+        parameters["standby"] = True
+        label = f"{name}.standby_{self._spares_started}"
+        spare_params = self._overrides_dir() / f"{label}.overrides.yaml"
+        spare_params.write_text(yaml.safe_dump({f"{namespace}/{name}": {"ros__parameters": parameters}}))
+        args = [str(executable_path(active.node)), "--ros-args", "-r", f"__node:={name}", "-r",
+                f"__ns:={namespace}"]
+        for path in self.params_files:
+            args += ["--params-file", str(path)]
+        args += ["--params-file", str(spare_params)]
+        spare = self._spawn(active.node, args, label, False, active.parameters)
+        spare.namespace = namespace
+        self.spares[name] = spare
+        return spare
+
+    def promote_spare(self, name: str) -> RunningNode | None:
+        """Make the hot standby of ``name`` the active node (SIGUSR1); None when it has none alive."""
+        spare = self.spares.pop(name, None)
+        if spare is None or spare.process.poll() is not None:
+            return None
+        old = self.running[name]
+        if old.log_file is not None:
+            old.log_file.close()
+            old.log_file = None
+        spare.restarts = old.restarts + 1
+        spare.process.send_signal(signal.SIGUSR1)
+        self.running[name] = spare
+        return spare
+
+    def _spawn(self, node: GraphNode, args: list[str], label: str, append_log: bool,
+               parameters: dict[str, object] | None) -> RunningNode:
+        log_file = None
+        log_path = None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            log_path = self.log_dir / f"{label}.log"
+            log_file = open(log_path, "a" if append_log else "w")
+        stdout = None if self.echo and log_file is None else (log_file or subprocess.DEVNULL)
+        process = subprocess.Popen(args, env=self.env, stdout=stdout, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
+        return RunningNode(node, process, log_path, log_file, dict(parameters) if parameters else None)
 
     def restart(self, name: str) -> RunningNode:
         """Start a node that exited again, with the same parameters (its log is appended to)."""
@@ -159,14 +213,14 @@ class GraphRunner:
     def stop(self, names: Sequence[str] | None = None, timeout_s: float = 15.0) -> dict[str, int]:
         """SIGINT the nodes (all by default, in reverse start order), wait, kill stragglers; exit statuses."""
         chosen = list(names) if names is not None else list(reversed(list(self.running)))
-        for name in chosen:
-            process = self.running[name].process
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
+        processes = {name: self.running[name] for name in chosen}
+        processes.update({f"{name} (standby)": self.spares.pop(name) for name in chosen if name in self.spares})
+        for running in processes.values():
+            if running.process.poll() is None:
+                running.process.send_signal(signal.SIGINT)
         statuses = {}
         deadline = time.monotonic() + timeout_s
-        for name in chosen:
-            running = self.running[name]
+        for name, running in processes.items():
             try:
                 statuses[name] = running.process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
@@ -217,7 +271,10 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
 
 
 def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) -> bool:
-    """Restart each failed node after its back-off; False once one has failed MAX_RESTARTS times."""
+    """Replace each failed node: by its hot standby at once, else by a restart after its back-off.
+
+    False once a node has failed MAX_RESTARTS times.
+    """
     now = time.monotonic()
     for name in failed:
         running = runner.running[name]
@@ -225,14 +282,40 @@ def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) 
             print(f"[graph] {name} failed {running.restarts + 1} times (exit {running.process.returncode}): not "
                   f"restarted again; see its log", file=sys.stderr)
             return False
+        status = running.process.returncode
+        spare = runner.promote_spare(name)
+        if spare is not None:
+            print(f"[graph] {name} exited with status {status}: promoted its hot standby {spare.namespace}/{name} "
+                  f"(restart {spare.restarts} of at most {MAX_RESTARTS}); starting a new standby", file=sys.stderr)
+            runner.start_spare(name)
+            continue
         due = backoff.setdefault(name, now + restart_delay_s(running.restarts))
         if now < due:
             continue
         del backoff[name]
-        print(f"[graph] {name} exited with status {running.process.returncode}: restarting it "
+        print(f"[graph] {name} exited with status {status}: restarting it "
               f"(restart {running.restarts + 1} of at most {MAX_RESTARTS})", file=sys.stderr)
         runner.restart(name)
+        if name in STANDBY_NODES and name in runner.spares_wanted:
+            runner.start_spare(name)
     return True
+
+
+def _replace_dead_spares(runner: GraphRunner, spare_failures: dict[str, int]) -> None:
+    """Start a new hot standby for one that died (at most MAX_RESTARTS per node, then the node goes without)."""
+    for name, spare in list(runner.spares.items()):
+        if spare.process.poll() is None:
+            continue
+        del runner.spares[name]
+        spare_failures[name] = spare_failures.get(name, 0) + 1
+        if spare_failures[name] > MAX_RESTARTS:
+            print(f"[graph] the hot standby of {name} failed {spare_failures[name]} times (exit "
+                  f"{spare.process.returncode}): {name} runs without one; see {spare.log_path}", file=sys.stderr)
+            runner.spares_wanted.discard(name)
+            continue
+        print(f"[graph] the hot standby of {name} exited with status {spare.process.returncode}: starting another",
+              file=sys.stderr)
+        runner.start_spare(name)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -262,6 +345,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="restart a node that dies (at once, then after 0.5 s doubling to 8 s, at most 5 "
                         "times), as respawn:=true does for ros2 launch; the tracker and the fuser keep a state "
                         "file, so a restarted one carries on from its tracks")
+    parser.add_argument("--hot-standby", action="store_true",
+                        help="with --respawn: run a spare tracker, fuser and GPS publisher that process every message "
+                        "without publishing, and promote one at once when its node dies (no start-up, no "
+                        "rediscovery), then start a new spare")
     parser.add_argument("--no-state-files", action="store_true",
                         help="with --respawn: restart the tracker and the fuser cold, without a state file")
     parser.add_argument("--connect-timeout", type=float, default=60.0,
@@ -287,6 +374,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGINT, lambda *_: stop_requested.set())
         signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
         backoff: dict[str, float] = {}  # node -> monotonic time before which it is not restarted
+        spare_failures: dict[str, int] = {}
+        if args.hot_standby and not args.respawn:
+            raise VesselError("--hot-standby needs --respawn: the spares replace nodes that die")
         sim_time = sim_time_for_source(args.source or "") if args.sim_time == "auto" else args.sim_time == "true"
         if sim_time:
             print("[graph] use_sim_time: the nodes follow the replay's /clock", file=sys.stderr)
@@ -300,6 +390,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 overrides["state_file"] = str(runner.state_file(name))
             runner.start(known[name], overrides)
             print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
+            if args.hot_standby and name in STANDBY_NODES:
+                runner.spares_wanted.add(name)
+                spare = runner.start_spare(name)
+                print(f"[graph] started {spare.namespace}/{name}: its hot standby", file=sys.stderr)
         if "camera" in wanted:
             if set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
                 watcher = GraphWatcher()
@@ -330,6 +424,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print("[graph] camera source ended", file=sys.stderr)
                 time.sleep(2.0)
                 break
+            _replace_dead_spares(runner, spare_failures)
             failed = runner.failed()
             if failed and args.respawn:
                 if not _respawn(runner, failed, backoff):

@@ -1,5 +1,6 @@
 """The ROS-free chain end to end: simulation (known truth) and, when present, the challenge labels."""
 import csv
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -19,8 +20,9 @@ def _frames(result):
     return [pl.DetectionFrame(0, k, f.stamp, f.boxes_xyxy, f.scores) for k, f in enumerate(result.frames)]
 
 
-@pytest.mark.parametrize("mode", ["online", "offline"])
-def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode):
+@pytest.mark.parametrize(("mode", "offline_target"), [("online", "joined"), ("offline", "joined"),
+                                                      ("offline", "online")])
+def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode, offline_target):
     result = vessel_of_interest_scenario(seed=7).run()
     camera = result.camera
     truth = result.truth[0]
@@ -33,7 +35,9 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
                 xw, yw, ok = camera.screen_to_world((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
                 if ok:
                     raw.append(math.hypot(xw - truth.world_xy[k, 0], yw - truth.world_xy[k, 1]))
-    config = pl.PipelineConfig(mode=mode, screen_source="measured", settings=fuser_settings_of_simulation(camera))
+    settings = fuser_settings_of_simulation(camera)
+    settings = dataclasses.replace(settings, offline=dataclasses.replace(settings.offline, target=offline_target))
+    config = pl.PipelineConfig(mode=mode, screen_source="measured", settings=settings)
     (video,) = pl.run(_frames(result), camera, config)
     errors, on_target = [], 0
     for p in video.predictions:
@@ -47,6 +51,31 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
     assert on_target >= 0.95 * errors.size  # the predictions follow vessel 0, the vessel of interest
     assert np.median(errors) < 0.8 * np.median(raw)
     assert errors.mean() < raw.mean()
+
+
+def test_the_offline_pass_can_smooth_what_the_online_selection_published():
+    result = vessel_of_interest_scenario(seed=7).run()
+    settings = fuser_settings_of_simulation(result.camera)
+    online_config = pl.PipelineConfig(mode="online", screen_source="measured", settings=settings)
+    (online,) = pl.run(_frames(result), result.camera, online_config)
+    smoothed_settings = dataclasses.replace(settings, offline=dataclasses.replace(settings.offline, target="online"))
+    offline_config = dataclasses.replace(online_config, mode="offline", settings=smoothed_settings)
+    (offline,) = pl.run(_frames(result), result.camera, offline_config)
+    online_ids = list(dict.fromkeys(p.track_id for p in online.predictions if p.measured))
+    assert offline.target_members == online_ids
+    measured_stamps = [p.stamp for p in online.predictions if p.measured]
+    smoothed_measured = {p.stamp for p in offline.predictions if p.measured}
+    assert smoothed_measured <= set(measured_stamps)
+    assert len(smoothed_measured) >= 0.9 * len(measured_stamps)
+    assert all(min(measured_stamps) <= p.stamp <= max(measured_stamps) for p in offline.predictions)
+
+
+def test_an_unknown_offline_target_is_refused_by_name():
+    from vessel_common.errors import DataError
+    from vessel_track.fuser_settings import OfflineConfig
+
+    with pytest.raises(DataError, match="offline: target must be one of joined, online"):
+        OfflineConfig(target="best")
 
 
 def _data_or_skip():

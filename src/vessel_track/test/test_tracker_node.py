@@ -163,3 +163,63 @@ def test_every_vessel_is_tracked_and_its_confidence_is_the_target_hypothesis():
     assert best.tolist() == pytest.approx([0.9, 0.8])
     _, only_vessels = detections_to_arrays(msg, frozenset({"vessel"}), "vessel_of_interest")
     assert only_vessels.tolist() == pytest.approx([0.05])
+
+
+def test_a_standby_tracker_publishes_only_once_promoted(start_node, ros_context, wait_until, ask_service):
+    """A hot standby (``standby:=true``) tracks silently and publishes from the message after SIGUSR1.
+
+    ``./vessel graph --hot-standby`` promotes a spare this way when the active tracker dies; the spare has been
+    discovered and has run its core on every message, so it carries on at once.
+    """
+    import signal
+
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    from vessel_common.node_support import reliable_qos
+    from vessel_msgs.msg import Detection2DArray, VesselTrackArray
+    from vessel_track.simulation import harbour_scenario
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+
+    tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS),
+                         "-r", "__ns:=/standby_1", "-p", "standby:=true")
+    node = rclpy.create_node("standby_test_driver", context=ros_context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+
+    def spin_until(predicate, timeout_s):
+        return wait_until(predicate, timeout_s, spin=lambda: executor.spin_once(timeout_sec=0.05))
+
+    try:
+        received: list = []
+        publisher = node.create_publisher(Detection2DArray, "/vessel/detections", reliable_qos(10))
+        node.create_subscription(VesselTrackArray, "/vessel/tracks/screen", received.append, reliable_qos(10))
+        assert spin_until(lambda: publisher.get_subscription_count() >= 1
+                          and node.count_publishers("/vessel/tracks/screen") >= 1, 30.0), tracker.output()
+        frames = harbour_scenario(frame_interval_s=4.0, duration_s=60.0, seed=0).run().frames
+        reference = MultiTargetTracker(TrackerConfig())
+        half = len(frames) // 2
+        for frame in frames[:half]:
+            publisher.publish(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
+            reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
+        spin_until(lambda: False, 2.0)
+        assert received == [], "a standby tracker published"
+
+        tracker.process.send_signal(signal.SIGUSR1)
+        for frame in frames[half:]:
+            before = len(received)
+            publisher.publish(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
+            expected = reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
+            assert spin_until(lambda before=before: len(received) > before, 10.0), tracker.output()
+            # It tracked while it waited: the same tracks as a tracker that published all along.
+            assert [(t.id, t.status) for t in received[-1].tracks] == [(s.track_id, int(s.status)) for s in expected]
+        assert "promoted from standby: publishing from now on" in tracker.output()
+
+        setter = node.create_client(SetParameters, "/standby_1/tracker/set_parameters")
+        back = ParameterMsg(name="standby", value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True))
+        result = ask_service(setter, SetParameters.Request(parameters=[back]), spin_until).results[0]
+        assert not result.successful and "a promoted node stays active" in result.reason
+        assert tracker.stop() == 0
+    finally:
+        node.destroy_node()

@@ -17,9 +17,17 @@ import numpy as np
 from rclpy.node import Node
 
 from vessel_calib.camera_parameters import declare_camera_model
-from vessel_common.node_support import NodeHealth, NodeState, declare_parameter, reliable_qos, stamp_to_sec
+from vessel_common.node_support import (
+    NodeHealth,
+    NodeState,
+    Standby,
+    declare_parameter,
+    reliable_qos,
+    stamp_to_sec,
+)
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
+from vessel_track import deferred_imports
 from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
 from vessel_track.node_params import FUSER_TOPICS, declare_fuser_settings, main_with_checks
 
@@ -116,6 +124,7 @@ class FuserNode(Node):
                                s.error_model, water_level=water_level, water_level_max_hold_s=s.water_level.max_hold_s)
         self.health = NodeHealth(self)
         self.state = NodeState(self, self.health, "fuser", settings_fingerprint(self.camera, s))
+        self.standby = Standby(self)
         self._reported_counts: dict[str, int] = {}
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
@@ -143,9 +152,12 @@ class FuserNode(Node):
         out.header = msg.header
         for track_msg, screen_track in zip(msg.tracks, screen, strict=True):
             out.tracks.append(fill_world_fields(track_msg, by_id[id(screen_track)]))
-        self.publisher.publish(out)
+        publishing = self.standby.publishing()
+        if publishing:
+            self.publisher.publish(out)
         self._report(out)
-        self.state.save(stamp, self.core)
+        if publishing:
+            self.state.save(stamp, self.core)
 
     def _report(self, out: VesselTrackArray) -> None:
         self.health.count("frames")
@@ -166,7 +178,7 @@ def main(args=None) -> None:
     """Console entry point: ``ros2 run vessel_track fuser --ros-args --params-file config/aitas.yaml``."""
     import sys
 
-    sys.exit(main_with_checks(FuserNode, args))
+    sys.exit(main_with_checks(FuserNode, args, preload=deferred_imports.MODULES))
 
 
 if __name__ == "__main__":

@@ -33,6 +33,8 @@ from vessel_track.fusion import CueStatistics, FusionConfig
 from vessel_track.selection import SelectionConfig
 from vessel_track.smoothing import MotionConfig
 
+OFFLINE_TARGETS = ("joined", "online")
+
 
 @dataclass(frozen=True)
 class OfflineConfig:
@@ -41,14 +43,21 @@ class OfflineConfig:
     adaptive_noise: choose the process noise (0.1-10 m^2/s^3) and a scale of the measurement covariances
     (0.25-2) per trajectory by maximum likelihood of its own measurements (empirical Bayes) instead of
     ``motion.accel_psd`` and the fitted cue noise.
+
+    target: which measurements are smoothed. ``joined`` (the paper's): trajectories joined and scored over the
+    whole recording, the best one. ``online``: the target the online selection chose at each frame, so the pass
+    smooths what was published live instead of choosing again.
     """
 
     outlier_threshold_px: float = 5.0
     iterations: int = 5
     adaptive_noise: bool = True
+    target: str = "joined"
 
     def __post_init__(self) -> None:
         """Validate."""
+        if self.target not in OFFLINE_TARGETS:
+            raise DataError(f"offline: target must be one of {', '.join(OFFLINE_TARGETS)}, got {self.target!r}")
         if not (np.isfinite(self.outlier_threshold_px) and self.outlier_threshold_px > 0):
             raise DataError(f"offline: outlier_threshold_px must be > 0, got {self.outlier_threshold_px!r}")
         if self.iterations < 1:

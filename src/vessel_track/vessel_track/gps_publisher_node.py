@@ -27,7 +27,7 @@ from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from vessel_calib import geodesy
 from vessel_calib.camera_parameters import declare_camera_model
-from vessel_common.node_support import NodeHealth, declare_parameter, reliable_qos, stamp_to_sec
+from vessel_common.node_support import NodeHealth, Standby, declare_parameter, reliable_qos, stamp_to_sec
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
 from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, main_with_checks
@@ -168,6 +168,7 @@ class GpsPublisherNode(Node):
         self.covariance_type = (NavSatFix.COVARIANCE_TYPE_KNOWN if covariance_type == "known"
                                 else NavSatFix.COVARIANCE_TYPE_APPROXIMATED)
         self.health = NodeHealth(self)
+        self.standby = Standby(self)
         self._origin = ((self.camera.camera_lat, self.camera.camera_lon)
                         if self.camera.camera_lat is not None and self.camera.camera_lon is not None else None)
         self._last_stamp: float | None = None
@@ -202,7 +203,8 @@ class GpsPublisherNode(Node):
                                      self.altitude_variance_m2, self._origin)
         if fields.problem:
             self.health.problem(fields.problem, f"{fields.detail}: NO_FIX published instead")
-        if fields.status == NavSatStatus.STATUS_FIX or self.publish_no_fix:
+        publishing = self.standby.publishing()
+        if publishing and (fields.status == NavSatStatus.STATUS_FIX or self.publish_no_fix):
             fix = NavSatFix()
             fix.header.stamp = msg.header.stamp
             fix.header.frame_id = self.frame_id
@@ -216,7 +218,7 @@ class GpsPublisherNode(Node):
                                             else NavSatFix.COVARIANCE_TYPE_UNKNOWN)
             self.fix_publisher.publish(fix)
             self.health.count("fixes" if fields.status == NavSatStatus.STATUS_FIX else "no_fixes")
-        if self.fixes_publisher is not None:
+        if publishing and self.fixes_publisher is not None:
             out = VesselTrackArray()
             out.header = msg.header
             out.tracks = [t for t in msg.tracks if t.has_world or t.status == STATUS_LOST]

@@ -57,6 +57,9 @@ def camera_command_line(source: str, rate: str | float | None) -> list[str]:
 STATEFUL_NODES = ("tracker", "fuser")
 """Nodes that keep a ``state_file`` under ``--respawn``, so that a restarted one carries on from its tracks."""
 
+STANDBY_NODES = ("tracker", "fuser", "gps_publisher")
+"""Nodes with a ``standby`` parameter, which ``./vessel graph --hot-standby`` runs a spare of."""
+
 MAX_RESTARTS = 5
 """A node restarted this many times is left down and the graph stops: it fails for a reason a restart cannot fix."""
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import CalibrationError, DataError
-from vessel_common.state_file import STATE_PARAMETERS
+from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS
 from vessel_track.fuser_settings import FUSION_ANCHOR_MOVED, FuserSettings, flatten
 
 _INF = 1.0e12
@@ -104,6 +104,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "offline.iterations": ("Offline smoothing passes (paper 5).", None),
     "offline.adaptive_noise": ("Offline: process noise and measurement-noise scale per trajectory by maximum "
                                "likelihood of its own measurements.", None),
+    "offline.target": ("Offline: smooth the best trajectory joined over the recording (joined, the paper's) or the "
+                       "target the online selection chose at each frame (online).", None),
     "error_model.kind": ("origin, affine or quantile (how the error model was fitted).", None),
     "error_model.slope": ("Expected error per metre of distance (paper 0.0555).", (0.0, 100.0)),
     "error_model.intercept_m": ("Expected error at zero distance, m.", (0.0, 1e6)),
@@ -165,7 +167,7 @@ def params_file_problem(argv: Sequence[str] | None) -> str | None:
     return None
 
 
-def main_with_checks(node_class, argv: Sequence[str] | None = None) -> int:
+def main_with_checks(node_class, argv: Sequence[str] | None = None, preload: Sequence[str] = ()) -> int:
     """Check ``--params-file`` arguments, then run the node with ``vessel_common.node_support.run_node``."""
     from vessel_common.node_support import run_node
 
@@ -175,7 +177,7 @@ def main_with_checks(node_class, argv: Sequence[str] | None = None) -> int:
         print(f"error: {problem}", file=sys.stderr)
         return 2
     try:
-        return run_node(node_class, args)
+        return run_node(node_class, args, preload=preload)
     except CalibrationError as error:  # raised before the node exists (e.g. by rcl argument parsing)
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -227,6 +229,7 @@ def render_fuser_yaml(settings: FuserSettings) -> str:
         lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
     for name, (default, description, _) in STATE_PARAMETERS.items():
         lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
+    lines.append(f"    standby: false  # {STANDBY_DESCRIPTION}")
     nested = settings.to_params()
     for block, values in nested.items():
         lines.append(f"    {block}:")
@@ -242,6 +245,7 @@ def render_gps_publisher_yaml() -> str:
              "gps_publisher:", "  ros__parameters:"]
     for name, (default, description) in GPS_PUBLISHER_PARAMETERS.items():
         lines.append(f"    {name}: {_yaml_value(default)}  # {description}")
+    lines.append(f"    standby: false  # {STANDBY_DESCRIPTION}")
     return "\n".join(lines) + "\n"
 
 

@@ -230,17 +230,36 @@ def trajectories_of(rows: list[TrackRow], motion=None) -> tuple[list[Trajectory]
     return trajectories, per_track
 
 
-def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config: PipelineConfig) -> None:
-    s = config.settings
-    trajectories, measurements = trajectories_of(result.track_rows, s.motion)
-    result.predictions = []
+def _online_target_measurements(rows: list[TrackRow]) -> tuple[list[str], list, list, list, list]:
+    """The online target's measurements, frame by frame.
+
+    Its track ids (in order), stamps, positions, covariances and screen points.
+    """
+    members: list[str] = []
+    stamps, z, R, screen = [], [], [], []
+    for row in rows:
+        wt = row.world
+        if not wt.is_target or wt.measured_position is None or not wt.has_world:
+            continue
+        if stamps and row.stamp <= stamps[-1]:
+            continue
+        if wt.screen.track_id not in members:
+            members.append(wt.screen.track_id)
+        stamps.append(row.stamp)
+        z.append(wt.measured_position)
+        R.append(wt.measured_covariance)
+        screen.append(wt.measured_screen)
+    return members, stamps, z, R, screen
+
+
+def _joined_target_measurements(rows: list[TrackRow], settings) -> tuple[list[str], list, list, list, list]:
+    """The paper's choice: the best trajectory joined over the whole recording, and its measurements."""
+    trajectories, measurements = trajectories_of(rows, settings.motion)
     if not trajectories:
-        return
-    target, _ = select_target(trajectories, s.selection)
+        return [], [], [], [], []
+    target, _ = select_target(trajectories, settings.selection)
     if target is None:  # no trajectory may be the vessel of interest (selection.positive_evidence_only)
-        result.target_members = []
-        return
-    result.target_members = list(target.members)
+        return [], [], [], [], []
     stamps, z, R, screen = [], [], [], []
     for member in target.members:
         m = measurements[member]
@@ -249,6 +268,19 @@ def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config
         z += [m["measured"][i] for i in keep]
         R += [m["covariance"][i] for i in keep]
         screen += [m["screen"][i] for i in keep]
+    return list(target.members), stamps, z, R, screen
+
+
+def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config: PipelineConfig) -> None:
+    s = config.settings
+    if s.offline.target == "online":
+        members, stamps, z, R, screen = _online_target_measurements(result.track_rows)
+    else:
+        members, stamps, z, R, screen = _joined_target_measurements(result.track_rows, s)
+    result.predictions = []
+    result.target_members = members
+    if not stamps:
+        return
     measured_t = np.array(stamps)
     grid = np.array(sorted({t for t in frame_stamps if measured_t[0] <= t <= measured_t[-1]} | set(stamps)))
     index = {t: i for i, t in enumerate(grid)}
@@ -280,16 +312,16 @@ def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config
     smoothed = smooth_with_outlier_masking(grid, Z, RR, residual_px, s.offline.outlier_threshold_px,
                                            s.offline.iterations, motion)
     clip = s.fusion.clip_m
-    members = set(target.members)
     for i, t in enumerate(grid):
         x, y = np.clip(smoothed.positions[i], -clip, clip)
         if math.hypot(x, y) > s.fusion.max_range_m:
             continue
         lat, lon = geodesy.local_to_gps(x, y, camera.camera_lat, camera.camera_lon)
         result.predictions.append(Prediction(result.video, float(t), float(lat), float(lon), float(x), float(y),
-                                             "+".join(target.members), bool(np.isfinite(Z[i, 0]))))
+                                             "+".join(members), bool(np.isfinite(Z[i, 0]))))
+    chosen = set(members)
     for row in result.track_rows:
-        row.world.is_target = row.world.screen.track_id in members
+        row.world.is_target = row.world.screen.track_id in chosen
 
 
 def run(frames: list[DetectionFrame], camera, config: PipelineConfig) -> list[VideoResult]:

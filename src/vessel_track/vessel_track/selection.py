@@ -26,9 +26,9 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from vessel_common.errors import DataError
+from vessel_track.deferred_imports import linear_sum_assignment
 
 _FORBIDDEN = 1e9
 CONFIDENCE_SCORES = ("percentile", "evidence")

@@ -35,13 +35,16 @@ import math
 from collections import deque
 from dataclasses import asdict, dataclass, field, fields
 from enum import IntEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
-from scipy.optimize import linear_sum_assignment
 
 from vessel_calib.params import node_blocks, read_params_yaml
 from vessel_common.errors import CalibrationError, DataError
+from vessel_track.deferred_imports import kalman_filter, linear_sum_assignment
+
+if TYPE_CHECKING:
+    from filterpy.kalman import KalmanFilter
 
 PROCESS_NOISE_MODELS = ("continuous_wna", "discrete_wna", "paper")
 ASSOCIATION_METHODS = ("global", "greedy")
@@ -634,7 +637,7 @@ class MultiTargetTracker:
 
     def _new_filter(self, center: np.ndarray, size: np.ndarray) -> KalmanFilter:
         cfg = self.config
-        kf = KalmanFilter(dim_x=4, dim_z=2)
+        kf = kalman_filter(dim_x=4, dim_z=2)
         kf.x = np.array([[center[0]], [0.0], [center[1]], [0.0]])
         kf.H = _H.copy()
         R = self._measurement_cov(size)

@@ -25,14 +25,16 @@ from vessel_common.errors import DataError, VesselError
 from vessel_common.node_support import (
     NodeHealth,
     NodeState,
+    Standby,
     declare_parameter,
     reliable_qos,
-    run_node,
     sec_to_stamp,
     stamp_to_sec,
 )
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
+from vessel_track import deferred_imports
+from vessel_track.node_params import main_with_checks
 from vessel_track.tracker import (
     ASSOCIATION_METHODS,
     DISTANCE_METRICS,
@@ -221,6 +223,7 @@ class TrackerNode(Node):
         self.health = NodeHealth(self)
         self.state = NodeState(self, self.health, "tracker",
                                settings_fingerprint(config, sorted(self.classes or ()), self.confidence_class))
+        self.standby = Standby(self)
         self._reported = TrackerCounters()
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
@@ -250,9 +253,12 @@ class TrackerNode(Node):
         out = VesselTrackArray()
         out.header = msg.header
         out.tracks = [track_to_msg(s, msg.header) for s in states]
-        self.publisher.publish(out)
+        publishing = self.standby.publishing()
+        if publishing:
+            self.publisher.publish(out)
         self._report(len(boxes), states)
-        self.state.save(stamp, self.tracker)
+        if publishing:
+            self.state.save(stamp, self.tracker)
 
     def _report(self, n_boxes: int, states: list[TrackState]) -> None:
         counters = self.tracker.counters
@@ -274,17 +280,7 @@ def main(args=None) -> None:
     """Console entry point: ``ros2 run vessel_track tracker --ros-args --params-file config/aitas.yaml``."""
     import sys
 
-    try:
-        from vessel_track.node_params import params_file_problem
-    except ImportError:  # pragma: no cover - the fusion engineer's helper; the node works without it
-        params_file_problem = None
-    argv = list(sys.argv if args is None else args)
-    if params_file_problem is not None:
-        problem = params_file_problem(argv)
-        if problem is not None:
-            print(f"error: {problem}", file=sys.stderr)
-            sys.exit(2)
-    sys.exit(run_node(TrackerNode, argv))
+    sys.exit(main_with_checks(TrackerNode, args, preload=deferred_imports.MODULES))
 
 
 if __name__ == "__main__":
