@@ -51,6 +51,17 @@ def test_a_snapshot_is_resumed_once_so_a_state_that_crashes_the_node_cannot_loop
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_standby_reads_its_active_nodes_snapshot_without_taking_it(tmp_path):
+    path = tmp_path / "tracker.state"
+    fingerprint = settings_fingerprint(TrackerConfig())
+    StateFile(path, "tracker", fingerprint).save(100.0, {"tracks": ["T1"]})
+    spare = StateFile(path, "tracker", fingerprint)
+    state, why = spare.resume(100.0, consume=False)
+    assert state == {"tracks": ["T1"]} and "resumed" in why
+    assert spare.resumed_stamp == 100.0  # the message stamped 100 is in it: the node skips that message
+    assert path.is_file() and not (tmp_path / "tracker.state.resumed").exists()  # still the active node's
+
+
 def test_the_fingerprint_of_a_set_is_the_same_in_every_process():
     """Pickled sets follow the per-process string hash; a restarted node must still recognise its settings."""
     code = ("from vessel_common.state_file import settings_fingerprint; "

@@ -209,10 +209,16 @@ def steady_timer(node: Node, period_s: float, callback: Callable[[], None]):
 MATCHED_SUBSCRIBERS = "matched_subscribers."
 
 
-def matched_subscribers(array) -> dict[str, int]:
-    """Subscriptions matched by each topic's publisher, from a ``DiagnosticArray`` of ``NodeHealth`` nodes."""
+def matched_subscribers(array, root_namespace_only: bool = False) -> dict[str, int]:
+    """Subscriptions matched by each topic's publisher, from a ``DiagnosticArray`` of ``NodeHealth`` nodes.
+
+    ``root_namespace_only``: leave out nodes in a namespace (a hot standby, ``standby_N/tracker``), whose
+    publishers carry nothing until promoted.
+    """
     found: dict[str, int] = {}
     for status in array.status:
+        if root_namespace_only and "/" in status.name:
+            continue
         for item in status.values:
             if item.key.startswith(MATCHED_SUBSCRIBERS) and item.value.isdigit():
                 found[item.key[len(MATCHED_SUBSCRIBERS):]] = int(item.value)
@@ -300,7 +306,7 @@ class NodeHealth:
     def publish(self) -> None:
         """Publish the current status, figures and problem counts."""
         status = DiagnosticStatus()
-        status.name = f"{self._node.get_name()}"
+        status.name = self._node.get_fully_qualified_name().lstrip("/")  # "tracker"; a spare's "standby_1/tracker"
         status.hardware_id = self._hardware_id
         with self._lock:
             level = self._status_level
@@ -329,20 +335,27 @@ class NodeState:
     never stop the node.
     """
 
-    def __init__(self, node: Node, health: NodeHealth, kind: str, fingerprint: str):
+    def __init__(self, node: Node, health: NodeHealth, kind: str, fingerprint: str, read_only: bool = False):
         values = {name: declare_parameter(node, name, default, description,
                                           **({"float_range": bounds} if bounds else {}))
                   for name, (default, description, bounds) in STATE_PARAMETERS.items()}
         self._node = node
         self._health = health
+        self.read_only = read_only
         self.file = StateFile(values["state_file"], kind, fingerprint, values["state_period_s"],
                               values["state_max_age_s"]) if values["state_file"] else None
 
-    def resume(self, stamp: float, core) -> None:
-        """At the first message after a start: restore ``core`` from the state file if it fits ``stamp``."""
+    def resume(self, stamp: float, core) -> bool:
+        """At the first message after a start: restore ``core`` from the state file if it fits ``stamp``.
+
+        True when the snapshot already holds the message stamped ``stamp`` (a hot standby reading the file its
+        active node has just written): the caller skips it rather than apply it twice. ``read_only`` (a standby)
+        reads the snapshot without marking it resumed, since it is the active node's.
+        """
         if self.file is None or not self.file.pending or stamp <= 0.0:  # a zero stamp says nothing of the time
-            return
-        state, what = self.file.resume(stamp)
+            return False
+        state, what = self.file.resume(stamp, consume=not self.read_only)
+        holds_this_message = False
         if state is not None:
             try:
                 core.restore(state)
@@ -350,7 +363,9 @@ class NodeState:
                 what = f"state file {self.file.path} does not fit this node ({error}): cold start"
             else:
                 self._health.count("resumed_from_state_file")
+                holds_this_message = self.file.resumed_stamp == stamp
         self._node.get_logger().info(what)
+        return holds_this_message
 
     def save(self, stamp: float, core) -> None:
         """Snapshot ``core`` if ``state_period_s`` of message time has passed since the last one."""

@@ -81,17 +81,19 @@ class StateFile:
         self.path = Path(self.path).expanduser()
         self.pending = True  # resume not tried yet
         self._saved_stamp: float | None = None
+        self.resumed_stamp: float | None = None  # the stamp of the snapshot resume() returned
 
     @property
     def resumed_path(self) -> Path:
         """Where this snapshot goes once it has been resumed."""
         return resumed_path(self.path)
 
-    def resume(self, stamp: float) -> tuple[object | None, str]:
+    def resume(self, stamp: float, consume: bool = True) -> tuple[object | None, str]:
         """The saved state if it is valid for a message stamped ``stamp``, else None; and what happened, in words.
 
         A snapshot is resumed once: a node that stops again before it writes a new one starts cold the next time,
-        since the state it resumed may be what stopped it.
+        since the state it resumed may be what stopped it. ``consume=False`` reads it without marking it (a hot
+        standby reading its active node's snapshot).
         """
         self.pending = False
         if not self.path.is_file():
@@ -113,10 +115,12 @@ class StateFile:
             return None, (f"state file {self.path} is {age:+.1f} s from the first message (resumed only within "
                           f"0..{self.max_age_s:g} s, state_max_age_s): cold start")
         self._saved_stamp = float(saved["stamp"])
-        try:
-            os.replace(self.path, self.resumed_path)
-        except OSError as error:
-            return None, f"state file {self.path} could not be marked as resumed ({error}): cold start"
+        if consume:
+            try:
+                os.replace(self.path, self.resumed_path)
+            except OSError as error:
+                return None, f"state file {self.path} could not be marked as resumed ({error}): cold start"
+        self.resumed_stamp = float(saved["stamp"])
         return saved["state"], f"resumed from state file {self.path}, saved {age:.2f} s before the first message"
 
     def due(self, stamp: float) -> bool:

@@ -21,12 +21,13 @@ from pathlib import Path
 
 import yaml
 
-from vessel_calib.params import node_blocks, read_params_yaml
+from vessel_calib.params import read_params_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
 from vessel_common.paths import repo_root
 from vessel_common.state_file import remove_state_file
 from vessel_tools.graph_watcher import GraphWatcher
+from vessel_track.fuser_settings import flatten
 from vessel_track.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
@@ -73,6 +74,15 @@ class RunningNode:
     parameters: dict[str, object] | None = None
     restarts: int = 0
     namespace: str = ""
+    promote_until: float = 0.0
+
+
+PROMOTION_SIGNALS_S = 30.0
+"""How long a promoted spare is signalled again, in case it was still starting when promoted."""
+
+
+def _ignore_sigusr1() -> None:
+    signal.signal(signal.SIGUSR1, signal.SIG_IGN)
 
 
 class GraphRunner:
@@ -131,10 +141,11 @@ class GraphRunner:
         self._spares_started += 1
         namespace = f"/standby_{self._spares_started}"
         parameters: dict[str, object] = {}
-        for path in self.params_files:
-            for block in node_blocks(read_params_yaml(path), name)[1:]:  # the /** block applies as it is
-                parameters.update(block)
-        parameters.update(active.parameters or {})
+        for path in self.params_files:  # the /** blocks apply as they are
+            blocks = read_params_yaml(path)
+            for key in (name, f"/{name}"):
+                parameters.update(flatten(blocks.get(key) or {}))
+        parameters.update(flatten(active.parameters or {}))
         parameters["standby"] = True
         label = f"{name}.standby_{self._spares_started}"
         spare_params = self._overrides_dir() / f"{label}.overrides.yaml"
@@ -144,7 +155,7 @@ class GraphRunner:
         for path in self.params_files:
             args += ["--params-file", str(path)]
         args += ["--params-file", str(spare_params)]
-        spare = self._spawn(active.node, args, label, False, active.parameters)
+        spare = self._spawn(active.node, args, label, False, active.parameters, ignore_sigusr1=True)
         spare.namespace = namespace
         self.spares[name] = spare
         return spare
@@ -159,12 +170,24 @@ class GraphRunner:
             old.log_file.close()
             old.log_file = None
         spare.restarts = old.restarts + 1
+        spare.promote_until = time.monotonic() + PROMOTION_SIGNALS_S
         spare.process.send_signal(signal.SIGUSR1)
         self.running[name] = spare
         return spare
 
+    def repeat_promotions(self) -> None:
+        """Signal each recently promoted spare again (once a tick for ``PROMOTION_SIGNALS_S``).
+
+        A spare still starting ignores SIGUSR1 until its node installs the handler (it is started with the
+        signal ignored, so an early one cannot kill it); a promoted node ignores the repeats.
+        """
+        now = time.monotonic()
+        for running in self.running.values():
+            if running.promote_until > now and running.process.poll() is None:
+                running.process.send_signal(signal.SIGUSR1)
+
     def _spawn(self, node: GraphNode, args: list[str], label: str, append_log: bool,
-               parameters: dict[str, object] | None) -> RunningNode:
+               parameters: dict[str, object] | None, ignore_sigusr1: bool = False) -> RunningNode:
         log_file = None
         log_path = None
         if self.log_dir is not None:
@@ -173,7 +196,8 @@ class GraphRunner:
             log_file = open(log_path, "a" if append_log else "w")
         stdout = None if self.echo and log_file is None else (log_file or subprocess.DEVNULL)
         process = subprocess.Popen(args, env=self.env, stdout=stdout, stderr=subprocess.STDOUT,
-                                   start_new_session=True)
+                                   start_new_session=True,
+                                   preexec_fn=_ignore_sigusr1 if ignore_sigusr1 else None)
         return RunningNode(node, process, log_path, log_file, dict(parameters) if parameters else None)
 
     def restart(self, name: str) -> RunningNode:
@@ -307,6 +331,8 @@ def _replace_dead_spares(runner: GraphRunner, spare_failures: dict[str, int]) ->
         if spare.process.poll() is None:
             continue
         del runner.spares[name]
+        if spare.log_file is not None:
+            spare.log_file.close()
         spare_failures[name] = spare_failures.get(name, 0) + 1
         if spare_failures[name] > MAX_RESTARTS:
             print(f"[graph] the hot standby of {name} failed {spare_failures[name]} times (exit "
@@ -399,7 +425,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 watcher = GraphWatcher()
                 try:
                     wait_until_connected(runner, watcher, args.connect_timeout, "see the nodes' output above",
-                                         with_recorder=args.record is not None)
+                                         with_recorder=args.record is not None, spares=set(runner.spares))
                 finally:
                     watcher.close()
                 print("[graph] every link from the detector to the GPS publisher is matched", file=sys.stderr)
@@ -425,6 +451,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 time.sleep(2.0)
                 break
             _replace_dead_spares(runner, spare_failures)
+            runner.repeat_promotions()
             failed = runner.failed()
             if failed and args.respawn:
                 if not _respawn(runner, failed, backoff):
@@ -434,7 +461,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 break
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
-        return 0 if all(code == 0 for code in statuses.values()) else 1
+        return 0 if all(code == 0 for name, code in statuses.items() if not name.endswith("(standby)")) else 1
     except VesselError:
         if runner is not None:  # never leave started nodes behind
             runner.stop()

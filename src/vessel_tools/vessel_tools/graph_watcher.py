@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import struct
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 IMAGE_TOPIC = "/camera/image_raw/compressed"
@@ -157,7 +157,7 @@ class GraphWatcher:
     def _on_diagnostics(self, array) -> None:
         from vessel_common.node_support import matched_subscribers
 
-        self.matched.update(matched_subscribers(array))
+        self.matched.update(matched_subscribers(array, root_namespace_only=True))
         for status in array.status:
             values = {kv.key: kv.value for kv in status.values}
             values["_message"] = status.message
@@ -169,15 +169,18 @@ class GraphWatcher:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
-    def connected(self, with_camera: bool = True, with_recorder: bool = True, with_detector: bool = True) -> bool:
+    def connected(self, with_camera: bool = True, with_recorder: bool = True, with_detector: bool = True,
+                  spares: Collection[str] = ()) -> bool:
         """Every link from the detector to the GPS publisher (and the recorder, and this watcher) is matched.
 
         Seen from each publisher's own side (the ``matched_subscribers`` its node reports on ``/diagnostics``):
         that this watcher sees a subscriber does not mean the publisher has matched it yet, and a frame published
         before then is lost. ``with_detector=False``: the links after the detector only (a self-paced source that
         waits for its own readers is started once these are up). ``with_camera=False``: no image reader needed.
+        ``spares``: the nodes with a hot standby, whose spare must have matched too (it needs every frame).
         """
-        readers = {DETECTIONS_TOPIC: 1, SCREEN_TOPIC: 1, TRACKS_TOPIC: 1, FIX_TOPIC: 0}  # tracker, fuser, gps_pub.
+        readers = {DETECTIONS_TOPIC: 1 + ("tracker" in spares), SCREEN_TOPIC: 1 + ("fuser" in spares),
+                   TRACKS_TOPIC: 1 + ("gps_publisher" in spares), FIX_TOPIC: 0}
         wanted = {topic: n + (topic in self.subscriptions) + with_recorder for topic, n in readers.items()}
         if not with_detector:
             del wanted[DETECTIONS_TOPIC]

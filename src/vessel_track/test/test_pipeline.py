@@ -3,6 +3,7 @@ import csv
 import dataclasses
 import json
 import math
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +69,10 @@ def test_the_offline_pass_can_smooth_what_the_online_selection_published():
     assert smoothed_measured <= set(measured_stamps)
     assert len(smoothed_measured) >= 0.9 * len(measured_stamps)
     assert all(min(measured_stamps) <= p.stamp <= max(measured_stamps) for p in offline.predictions)
+    targets_per_frame = defaultdict(int)
+    for row in offline.track_rows:
+        targets_per_frame[row.stamp] += row.world.is_target
+    assert max(targets_per_frame.values()) == 1  # the online choice, one target a frame
 
 
 def test_an_unknown_offline_target_is_refused_by_name():

@@ -123,8 +123,9 @@ class FuserNode(Node):
         self.core = TrackFuser(self.camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection,
                                s.error_model, water_level=water_level, water_level_max_hold_s=s.water_level.max_hold_s)
         self.health = NodeHealth(self)
-        self.state = NodeState(self, self.health, "fuser", settings_fingerprint(self.camera, s))
         self.standby = Standby(self)
+        self.state = NodeState(self, self.health, "fuser", settings_fingerprint(self.camera, s),
+                               read_only=not self.standby.active)
         self._reported_counts: dict[str, int] = {}
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
@@ -145,7 +146,8 @@ class FuserNode(Node):
             return
         source = self.settings.fusion.screen_source
         screen = [screen_track_from_msg(track, stamp, source) for track in msg.tracks]
-        self.state.resume(stamp, self.core)
+        if self.state.resume(stamp, self.core):
+            return  # the snapshot resumed already holds this frame
         world = self.core.update(stamp, screen)
         by_id = {id(w.screen): w for w in world}
         out = VesselTrackArray()

@@ -319,9 +319,10 @@ def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config
         lat, lon = geodesy.local_to_gps(x, y, camera.camera_lat, camera.camera_lon)
         result.predictions.append(Prediction(result.video, float(t), float(lat), float(lon), float(x), float(y),
                                              "+".join(members), bool(np.isfinite(Z[i, 0]))))
-    chosen = set(members)
-    for row in result.track_rows:
-        row.world.is_target = row.world.screen.track_id in chosen
+    if s.offline.target == "joined":  # online: the rows keep the online selection's flags, one target a frame
+        chosen = set(members)
+        for row in result.track_rows:
+            row.world.is_target = row.world.screen.track_id in chosen
 
 
 def run(frames: list[DetectionFrame], camera, config: PipelineConfig) -> list[VideoResult]:

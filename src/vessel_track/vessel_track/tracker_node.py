@@ -221,9 +221,10 @@ class TrackerNode(Node):
             "has it (the detector's target_class, e.g. vessel_of_interest); '' : the best accepted hypothesis.")
         self.tracker = MultiTargetTracker(config)
         self.health = NodeHealth(self)
-        self.state = NodeState(self, self.health, "tracker",
-                               settings_fingerprint(config, sorted(self.classes or ()), self.confidence_class))
         self.standby = Standby(self)
+        self.state = NodeState(self, self.health, "tracker",
+                               settings_fingerprint(config, sorted(self.classes or ()), self.confidence_class),
+                               read_only=not self.standby.active)
         self._reported = TrackerCounters()
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
@@ -241,7 +242,8 @@ class TrackerNode(Node):
             self.health.problem("zero_stamp", "a detection array has a zero header stamp: set the image stamp")
         boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
         dropped_before = self.tracker.counters.out_of_order_frames
-        self.state.resume(stamp, self.tracker)
+        if self.state.resume(stamp, self.tracker):
+            return  # the snapshot resumed already holds this frame
         try:
             states = self.tracker.update(stamp, boxes, scores, labels)
         except VesselError as error:

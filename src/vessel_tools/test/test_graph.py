@@ -1,0 +1,58 @@
+"""``vessel_tools.graph``: how a hot standby is started and promoted (without starting processes)."""
+
+from __future__ import annotations
+
+import signal
+
+import yaml
+
+from vessel_tools import graph
+from vessel_track.graph_nodes import GRAPH_NODES
+
+
+class _FakeProcess:
+    def __init__(self):
+        self.signals: list[int] = []
+
+    def poll(self):
+        return None
+
+    def send_signal(self, number):
+        self.signals.append(number)
+
+
+def test_a_spare_gets_its_nodes_blocks_under_its_namespaced_name(tmp_path, monkeypatch):
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"use_sim_time": False}},
+        "fuser": {"ros__parameters": {"selection": {"recent_evidence_s": 16.0, "evidence_clip": 4.0}}},
+        "/fuser": {"ros__parameters": {"selection": {"recent_evidence_s": 8.0}}},
+    }))
+    no_wildcard = tmp_path / "dump.yaml"  # like `ros2 param dump`: the node's block only
+    no_wildcard.write_text(yaml.safe_dump({"/fuser": {"ros__parameters": {"qos_depth": 7}}}))
+    spawned = []
+
+    def fake_spawn(self, node, args, label, append_log, parameters, ignore_sigusr1=False):
+        spawned.append((args, label, ignore_sigusr1))
+        return graph.RunningNode(node, _FakeProcess(), None, None, parameters)
+
+    monkeypatch.setattr(graph.GraphRunner, "_spawn", fake_spawn)
+    runner = graph.GraphRunner([params, no_wildcard], log_dir=tmp_path / "logs")
+    fuser = next(node for node in GRAPH_NODES if node.name == "fuser")
+    runner.start(fuser, {"state_file": "/tmp/fuser.state"})
+    spare = runner.start_spare("fuser")
+    args, label, ignore_sigusr1 = spawned[-1]
+    assert ignore_sigusr1 and label == "fuser.standby_1" and spare.namespace == "/standby_1"
+    assert args[args.index("-r") + 1:args.index("-r") + 4] == ["__node:=fuser", "-r", "__ns:=/standby_1"]
+    written = yaml.safe_load((tmp_path / "logs" / "fuser.standby_1.overrides.yaml").read_text())
+    assert written == {"/standby_1/fuser": {"ros__parameters": {
+        "selection.recent_evidence_s": 8.0, "selection.evidence_clip": 4.0, "qos_depth": 7,
+        "state_file": "/tmp/fuser.state", "standby": True}}}
+
+    active = runner.running["fuser"].process
+    promoted = runner.promote_spare("fuser")
+    assert promoted is spare and runner.running["fuser"] is spare and "fuser" not in runner.spares
+    assert spare.process.signals == [signal.SIGUSR1] and active.signals == []
+    runner.repeat_promotions()  # in case it was still starting and ignored the first
+    assert spare.process.signals == [signal.SIGUSR1, signal.SIGUSR1]
+    assert runner.promote_spare("fuser") is None  # no spare left until a new one is started
