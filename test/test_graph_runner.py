@@ -61,7 +61,8 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
     assert build.returncode == 0, build.stderr[-2000:]
     logs, recording = tmp_path / "logs", tmp_path / "recording"
     graph = subprocess.Popen([sys.executable, "-m", "vessel_tools.graph", "--source", str(bags / "video_15"),
-                              "--rate", "2", "--exit-at-end", "--respawn", "--record", str(recording), "--log-dir",
+                              "--rate", "4" if hot_standby else "2", "--exit-at-end", "--respawn", "--record",
+                              str(recording), "--log-dir",
                               str(logs)] + (["--hot-standby"] if hot_standby else []),
                              env=ros_env, stderr=subprocess.PIPE, text=True)
     try:
@@ -70,7 +71,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
         while not (camera_log.exists() and "publishing" in camera_log.read_text(errors="replace")):
             assert time.monotonic() < deadline and graph.poll() is None, "the graph did not start"
             time.sleep(0.5)
-        time.sleep(20.0)  # some frames through the graph
+        time.sleep(10.0 if hot_standby else 20.0)  # some frames through the graph
         marker = str(logs / "tracker.overrides.yaml")
         pids = subprocess.run(["pgrep", "-f", marker], capture_output=True, text=True).stdout.split()
         assert len(pids) == 1, pids
