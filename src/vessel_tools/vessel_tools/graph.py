@@ -115,14 +115,11 @@ class GraphRunner:
         Overrides go into one more parameter file under the node's own name: a ``-p name:=value`` on the
         command line is a ``/**`` override, which a file's node-specific value would beat.
         """
-        args = [str(executable_path(node)), "--ros-args", "-r", f"__node:={node.name}"]
-        for path in self.params_files:
-            args += ["--params-file", str(path)]
+        overrides = None
         if parameters:
             overrides = self._overrides_dir() / f"{node.name}.overrides.yaml"
             overrides.write_text(yaml.safe_dump({node.name: {"ros__parameters": dict(parameters)}}))
-            args += ["--params-file", str(overrides)]
-        running = self._spawn(node, args, node.name, append_log, parameters)
+        running = self._spawn(node, self._command(node, overrides), node.name, append_log, parameters)
         previous = self.running.get(node.name)
         if previous is not None:
             running.restarts = previous.restarts
@@ -150,12 +147,8 @@ class GraphRunner:
         label = f"{name}.standby_{self._spares_started}"
         spare_params = self._overrides_dir() / f"{label}.overrides.yaml"
         spare_params.write_text(yaml.safe_dump({f"{namespace}/{name}": {"ros__parameters": parameters}}))
-        args = [str(executable_path(active.node)), "--ros-args", "-r", f"__node:={name}", "-r",
-                f"__ns:={namespace}"]
-        for path in self.params_files:
-            args += ["--params-file", str(path)]
-        args += ["--params-file", str(spare_params)]
-        spare = self._spawn(active.node, args, label, False, active.parameters, ignore_sigusr1=True)
+        spare = self._spawn(active.node, self._command(active.node, spare_params, namespace), label, False,
+                            active.parameters, ignore_sigusr1=True)
         spare.namespace = namespace
         self.spares[name] = spare
         return spare
@@ -185,6 +178,15 @@ class GraphRunner:
         for running in self.running.values():
             if running.promote_until > now and running.process.poll() is None:
                 running.process.send_signal(signal.SIGUSR1)
+
+    def _command(self, node: GraphNode, overrides: Path | None, namespace: str = "") -> list[str]:
+        """The node's executable with the parameter files, then ``overrides``, optionally in ``namespace``."""
+        args = [str(executable_path(node)), "--ros-args", "-r", f"__node:={node.name}"]
+        if namespace:
+            args += ["-r", f"__ns:={namespace}"]
+        for path in [*self.params_files, *([overrides] if overrides is not None else [])]:
+            args += ["--params-file", str(path)]
+        return args
 
     def _spawn(self, node: GraphNode, args: list[str], label: str, append_log: bool,
                parameters: dict[str, object] | None, ignore_sigusr1: bool = False) -> RunningNode:
@@ -320,7 +322,7 @@ def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) 
         print(f"[graph] {name} exited with status {status}: restarting it "
               f"(restart {running.restarts + 1} of at most {MAX_RESTARTS})", file=sys.stderr)
         runner.restart(name)
-        if name in STANDBY_NODES and name in runner.spares_wanted:
+        if name in runner.spares_wanted:
             runner.start_spare(name)
     return True
 

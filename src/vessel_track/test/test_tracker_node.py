@@ -44,9 +44,8 @@ def detection_array(stamp, boxes, scores, class_id="boat"):
 
 
 @pytest.fixture
-def ros_graph(start_node, ros_context, wait_until):
-    """The tracker node started with its part file, and a driver node in this process (the shared fixtures)."""
-    tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS))
+def driver(ros_context, wait_until):
+    """A driver node in this process, and ``spin_until(predicate, timeout_s)`` spinning it."""
     node = rclpy.create_node("tracker_test_driver", context=ros_context)
     executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
@@ -55,9 +54,17 @@ def ros_graph(start_node, ros_context, wait_until):
         return wait_until(predicate, timeout_s, spin=lambda: executor.spin_once(timeout_sec=0.05))
 
     try:
-        yield tracker, node, spin_until
+        yield node, spin_until
     finally:
         node.destroy_node()
+
+
+@pytest.fixture
+def ros_graph(start_node, driver):
+    """The tracker node started with its part file, and the driver node (the shared fixtures)."""
+    tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS))
+    node, spin_until = driver
+    return tracker, node, spin_until
 
 
 def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
@@ -165,7 +172,7 @@ def test_every_vessel_is_tracked_and_its_confidence_is_the_target_hypothesis():
     assert only_vessels.tolist() == pytest.approx([0.05])
 
 
-def test_a_standby_tracker_publishes_only_once_promoted(start_node, ros_context, wait_until, ask_service):
+def test_a_standby_tracker_publishes_only_once_promoted(start_node, driver, ask_service):
     """A hot standby (``standby:=true``) tracks silently and publishes from the message after SIGUSR1.
 
     ``./vessel graph --hot-standby`` promotes a spare this way when the active tracker dies; the spare has been
@@ -184,42 +191,33 @@ def test_a_standby_tracker_publishes_only_once_promoted(start_node, ros_context,
 
     tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS),
                          "-r", "__ns:=/standby_1", "-p", "standby:=true")
-    node = rclpy.create_node("standby_test_driver", context=ros_context)
-    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
-    executor.add_node(node)
+    node, spin_until = driver
+    received: list = []
+    publisher = node.create_publisher(Detection2DArray, "/vessel/detections", reliable_qos(10))
+    node.create_subscription(VesselTrackArray, "/vessel/tracks/screen", received.append, reliable_qos(10))
+    assert spin_until(lambda: publisher.get_subscription_count() >= 1
+                      and node.count_publishers("/vessel/tracks/screen") >= 1, 30.0), tracker.output()
+    frames = harbour_scenario(frame_interval_s=4.0, duration_s=60.0, seed=0).run().frames
+    reference = MultiTargetTracker(TrackerConfig())
+    half = len(frames) // 2
+    for frame in frames[:half]:
+        publisher.publish(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
+        reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
+    spin_until(lambda: False, 2.0)
+    assert received == [], "a standby tracker published"
 
-    def spin_until(predicate, timeout_s):
-        return wait_until(predicate, timeout_s, spin=lambda: executor.spin_once(timeout_sec=0.05))
+    tracker.process.send_signal(signal.SIGUSR1)
+    for frame in frames[half:]:
+        before = len(received)
+        publisher.publish(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
+        expected = reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
+        assert spin_until(lambda before=before: len(received) > before, 10.0), tracker.output()
+        # It tracked while it waited: the same tracks as a tracker that published all along.
+        assert [(t.id, t.status) for t in received[-1].tracks] == [(s.track_id, int(s.status)) for s in expected]
+    assert "promoted from standby: publishing from now on" in tracker.output()
 
-    try:
-        received: list = []
-        publisher = node.create_publisher(Detection2DArray, "/vessel/detections", reliable_qos(10))
-        node.create_subscription(VesselTrackArray, "/vessel/tracks/screen", received.append, reliable_qos(10))
-        assert spin_until(lambda: publisher.get_subscription_count() >= 1
-                          and node.count_publishers("/vessel/tracks/screen") >= 1, 30.0), tracker.output()
-        frames = harbour_scenario(frame_interval_s=4.0, duration_s=60.0, seed=0).run().frames
-        reference = MultiTargetTracker(TrackerConfig())
-        half = len(frames) // 2
-        for frame in frames[:half]:
-            publisher.publish(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
-            reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
-        spin_until(lambda: False, 2.0)
-        assert received == [], "a standby tracker published"
-
-        tracker.process.send_signal(signal.SIGUSR1)
-        for frame in frames[half:]:
-            before = len(received)
-            publisher.publish(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
-            expected = reference.update(frame.stamp, frame.boxes_xyxy, frame.scores)
-            assert spin_until(lambda before=before: len(received) > before, 10.0), tracker.output()
-            # It tracked while it waited: the same tracks as a tracker that published all along.
-            assert [(t.id, t.status) for t in received[-1].tracks] == [(s.track_id, int(s.status)) for s in expected]
-        assert "promoted from standby: publishing from now on" in tracker.output()
-
-        setter = node.create_client(SetParameters, "/standby_1/tracker/set_parameters")
-        back = ParameterMsg(name="standby", value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True))
-        result = ask_service(setter, SetParameters.Request(parameters=[back]), spin_until).results[0]
-        assert not result.successful and "a promoted node stays active" in result.reason
-        assert tracker.stop() == 0
-    finally:
-        node.destroy_node()
+    setter = node.create_client(SetParameters, "/standby_1/tracker/set_parameters")
+    back = ParameterMsg(name="standby", value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True))
+    result = ask_service(setter, SetParameters.Request(parameters=[back]), spin_until).results[0]
+    assert not result.successful and "a promoted node stays active" in result.reason
+    assert tracker.stop() == 0
