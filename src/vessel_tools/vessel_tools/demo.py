@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset
@@ -48,6 +47,7 @@ from vessel_track.evaluation import FIX_COLUMNS
 from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
 from vessel_track.offline_data import DetectionFrame
 from vessel_track.tracker import load_tracker_config
+from vessel_track.tracker_node import detections_to_arrays, load_detection_inputs
 
 REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")
 OUTPUT_TOPICS = {
@@ -377,6 +377,23 @@ def tide_overrides(calibration: Path, params_file: Path) -> dict:
     return {}
 
 
+def recorded_detection_frames(recording: Path, video: int, classes: frozenset[str] | None,
+                              confidence_class: str) -> list[DetectionFrame]:
+    """The ``/vessel/detections`` of a recording as the tracker node took them: boxes and confidences.
+
+    ``classes`` and ``confidence_class`` as the tracker node's parameters (``load_detection_inputs``); empty when
+    the recording holds no detections.
+    """
+    frames = []
+    with BagReader(recording) as reader:
+        if "/vessel/detections" not in reader.topics:
+            return []
+        for index, (_, array) in enumerate(reader.read_topic("/vessel/detections")):
+            boxes, scores = detections_to_arrays(array, classes, confidence_class)
+            frames.append(DetectionFrame(video, index, ns_of_stamp(array.header.stamp) / 1e9, boxes, scores))
+    return frames
+
+
 def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Path, params_file: Path,
                                hand_boxes: bool = False) -> Path:
     """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
@@ -384,28 +401,19 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     The same tracker and fuser cores the nodes run, with the parameter file's settings, then the trajectory
     joining, scoring and smoothing over the whole video that only recorded data allows (``vessel_track.pipeline``,
     mode ``offline``). With ``hand_boxes`` the boxes are read as the fuser node read them
-    (``FuserSettings.for_hand_boxes``).
+    (``FuserSettings.for_hand_boxes``). Each box's confidence is what the tracker node took from the same message
+    (``detections_to_arrays`` with the file's ``classes`` and ``confidence_class``).
     """
     from vessel_track.pipeline import PipelineConfig, run_video, write_predictions_csv
 
     camera = load_camera_yaml(calibration)
+    classes, confidence_class = load_detection_inputs(params_file)
     settings, _ = load_fuser_settings(params_file).for_camera(camera)  # the note was logged by tide_overrides
     config = PipelineConfig(mode="offline", tracker=load_tracker_config(params_file),
                             settings=settings.for_hand_boxes() if hand_boxes else settings)
     results = []
     for run in runs:
-        frames = []
-        with BagReader(run.recording) as reader:
-            if "/vessel/detections" not in reader.topics:
-                continue
-            for index, (_, array) in enumerate(reader.read_topic("/vessel/detections")):
-                boxes = [[d.bbox.center.position.x - d.bbox.size_x / 2, d.bbox.center.position.y - d.bbox.size_y / 2,
-                          d.bbox.center.position.x + d.bbox.size_x / 2, d.bbox.center.position.y + d.bbox.size_y / 2]
-                         for d in array.detections]
-                scores = [d.results[0].hypothesis.score if d.results else 0.0 for d in array.detections]
-                stamp = ns_of_stamp(array.header.stamp) / 1e9
-                frames.append(DetectionFrame(run.video, index, stamp, np.array(boxes, dtype=float).reshape(-1, 4),
-                                             np.array(scores, dtype=float)))
+        frames = recorded_detection_frames(run.recording, run.video, classes, confidence_class)
         if frames:
             results.append(run_video(frames, camera, config))
     path = out / "predictions_offline.csv"

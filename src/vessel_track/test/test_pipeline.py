@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vessel_common.errors import DataError
 from vessel_track import pipeline as pl
 from vessel_track.fuser_settings import FuserSettings
 from vessel_track.simulation import (
@@ -236,3 +237,39 @@ def test_shipped_parameter_files_match_the_code_defaults():
     assert load_fuser_settings(shipped).to_params() == FuserSettings().to_params()
     assert set(fuser_parameter_defaults()) == set(FUSER_PARAMETERS)
     assert (root / "config" / "parts" / "gps_publisher.yaml").is_file()
+
+
+def test_gap_lengths_are_the_time_between_the_measurements_either_side():
+    stamps = np.array([0.0, 4.0, 8.0, 12.0, 16.0, 20.0, 24.0])
+    measured = np.array([True, False, True, False, False, False, True])
+    assert pl._gap_lengths(stamps, measured).tolist() == [0.0, 8.0, 0.0, 16.0, 16.0, 16.0, 0.0]
+
+
+def test_the_offline_pass_bridges_only_gaps_up_to_max_gap_s():
+    """The vessel unseen for a while: without a limit the pass interpolates across; with one it leaves the gap."""
+    result = vessel_of_interest_scenario(seed=7).run()
+    frames = _frames(result)
+    dt = float(np.median(np.diff([f.stamp for f in frames])))
+    unseen = range(len(frames) // 2, len(frames) // 2 + 3)
+    for k in unseen:
+        frame, source = frames[k], result.frames[k]
+        keep = np.asarray(source.gt_ids) != 0
+        frames[k] = pl.DetectionFrame(frame.video, frame.frame, frame.stamp, frame.boxes[keep], frame.scores[keep])
+    settings = fuser_settings_of_simulation(result.camera)
+
+    def offline(max_gap_s):
+        smoothed = dataclasses.replace(settings, offline=dataclasses.replace(settings.offline, target="joined",
+                                                                             max_gap_s=max_gap_s))
+        config = pl.PipelineConfig(mode="offline", screen_source="measured", settings=smoothed)
+        (video,) = pl.run(frames, result.camera, config)
+        return {p.stamp: p for p in video.predictions}
+
+    every_gap, short_gaps = offline(0.0), offline(3.5 * dt)
+    gap_stamps = {frames[k].stamp for k in unseen}
+    assert gap_stamps <= set(every_gap)  # bridged ...
+    left_out = set(every_gap) - set(short_gaps)
+    assert gap_stamps <= left_out and set(short_gaps) <= set(every_gap)  # ... or left out
+    assert all(not every_gap[t].measured for t in left_out)  # a frame with a measurement is never left out
+    assert all(short_gaps[t].lat == every_gap[t].lat and short_gaps[t].lon == every_gap[t].lon for t in short_gaps)
+    with pytest.raises(DataError, match="max_gap_s must be a finite number of seconds >= 0"):
+        dataclasses.replace(settings.offline, max_gap_s=-1.0)

@@ -353,3 +353,61 @@ def test_a_history_is_continued_only_by_a_track_that_looks_the_same_way():
     assert joined.continued == {"V": "B"} and target is None  # it inherited B's -32 of evidence
     kept_apart, target = after_the_other_boat_ended(True)
     assert kept_apart.continued == {} and target == "V"
+
+
+def _swapped_then_back(config):
+    """A follows the vessel, is moved onto another boat (the target is dropped), and then follows the vessel again.
+
+    Video 10 of training: the same track came back onto the vessel, its boxes said so again, but its history
+    (the other boat) kept it from being the target, and NO_FIX was published for the rest of the pass.
+    """
+    selector, _ = _followed_then_swapped(config)
+    assert selector.target is None
+    published = []
+    for k in range(13, 20):
+        published.append(selector.update(4.0 * k, [_wt("A", [180 + 8.0 * (k - 12), 50], conf=0.8, velocity=(2.0, 0)),
+                                                   _wt("B", [100, -80], conf=0.3)]))
+    return selector, published
+
+
+def test_a_track_whose_recent_boxes_say_the_vessel_again_takes_the_role_back():
+    _, without = _swapped_then_back(_evidence_config(recent_evidence_s=8.0))
+    assert without == [None] * 7  # the lost target's share of evidence is never reached
+    selector, published = _swapped_then_back(_evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0))
+    # A box at p 0.8 is +1.39 of log-odds, one at p 0.05 -2.94; the window (8 s, both ends counted) still
+    # holds a box of the other boat at the second frame, and none at the third, which brings the role back.
+    assert published[:2] == [None, None] and published[2:] == ["A"] * 5
+    assert selector.reacquisitions == 1 and selector.switches == 0
+    # A boat whose boxes never say the vessel is never taken, however long it is tracked.
+    assert "B" not in published
+
+
+def test_reacquisition_drops_only_a_history_that_says_another_boat():
+    config = _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)
+    selector = OnlineTargetSelector(config)
+    for k in range(6):  # C follows another boat: negative evidence
+        selector.update(4.0 * k, [_wt("C", [300 + 4.0 * k, 0], conf=0.05, velocity=(1.0, 0))])
+    assert selector.target is None and selector.score("C") < 0
+    targets = [selector.update(4.0 * k, [_wt("C", [300 + 4.0 * k, 0], conf=0.9, velocity=(1.0, 0))])
+               for k in range(6, 9)]
+    assert targets == [None, None, "C"] and selector.score("C") > 0  # its earlier history is gone
+    assert selector.update(36.0, [_wt("C", [336, 0], conf=0.9, velocity=(1.0, 0))]) == "C"  # and it stays the target
+    # A history that says the vessel is kept: a new track's positive evidence is not cut to the window.
+    selector = OnlineTargetSelector(config)
+    for k in range(6):
+        selector.update(4.0 * k, [_wt("D", [300 + 4.0 * k, 0], conf=0.9, velocity=(1.0, 0))])
+    assert selector.target == "D" and selector.score("D") == pytest.approx(
+        6 * math.log(9.0) * max(math.log(20.0), 1.0), rel=1e-6)
+
+
+@pytest.mark.parametrize("value", [-1.0, math.nan, math.inf, "2"])
+def test_reacquire_recent_evidence_is_validated(value):
+    with pytest.raises(DataError, match="reacquire_recent_evidence"):
+        _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=value)
+
+
+def test_reacquire_recent_evidence_needs_its_window():
+    with pytest.raises(DataError, match="recent_evidence_s > 0"):
+        _evidence_config(reacquire_recent_evidence=2.0)
+    with pytest.raises(DataError, match="confidence_score: evidence"):
+        SelectionConfig(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)

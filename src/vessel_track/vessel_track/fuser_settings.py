@@ -47,12 +47,17 @@ class OfflineConfig:
     target: which measurements are smoothed. ``joined`` (the paper's): trajectories joined and scored over the
     whole recording, the best one. ``online``: the target the online selection chose at each frame, so the pass
     smooths what was published live instead of choosing again.
+
+    max_gap_s: a frame without a measurement of the target is published only if the gap it lies in (between the
+    target's measurements either side) is at most this long (0: no limit, every gap is bridged). Interpolating
+    across a short gap is what smoothing is for; across a long one the vessel may have turned.
     """
 
     outlier_threshold_px: float = 5.0
     iterations: int = 5
     adaptive_noise: bool = True
     target: str = "joined"
+    max_gap_s: float = 0.0
 
     def __post_init__(self) -> None:
         """Validate."""
@@ -62,6 +67,9 @@ class OfflineConfig:
             raise DataError(f"offline: outlier_threshold_px must be > 0, got {self.outlier_threshold_px!r}")
         if self.iterations < 1:
             raise DataError(f"offline: iterations must be >= 1, got {self.iterations!r}")
+        if not (isinstance(self.max_gap_s, int | float) and math.isfinite(self.max_gap_s) and self.max_gap_s >= 0):
+            raise DataError(f"offline: max_gap_s must be a finite number of seconds >= 0 (0: no limit), "
+                            f"got {self.max_gap_s!r}")
 
 
 @dataclass(frozen=True)

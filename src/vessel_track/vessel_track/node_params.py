@@ -94,6 +94,9 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.recent_evidence_s": ("With the evidence score, a track whose confidences of the last this many "
                                     "seconds sum to non-positive log-odds may not be the target (0: off), s.",
                                     (0.0, 1e9)),
+    "selection.reacquire_recent_evidence": ("With recent_evidence_s, while there is no target a track whose "
+                                            "confidences of that window sum to at least this many log-odds becomes "
+                                            "the target, whatever its history (0: off).", (0.0, 1e9)),
     "selection.appearance_joins": ("With the evidence score, an ended track's history is continued only by a "
                                    "track whose first box looks the same way (vessel of interest or not).", None),
     "selection.evidence_half_life_s": ("With the evidence score, each confidence's log-odds counts "
@@ -106,6 +109,8 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
                                "likelihood of its own measurements.", None),
     "offline.target": ("Offline: smooth the best trajectory joined over the recording (joined, the paper's) or the "
                        "target the online selection chose at each frame (online).", None),
+    "offline.max_gap_s": ("Offline: a frame without a measurement of the target is published only if its gap "
+                          "between measurements is at most this long (0: no limit), s.", (0.0, 1e9)),
     "error_model.kind": ("origin, affine or quantile (how the error model was fitted).", None),
     "error_model.slope": ("Expected error per metre of distance (paper 0.0555).", (0.0, 100.0)),
     "error_model.intercept_m": ("Expected error at zero distance, m.", (0.0, 1e6)),

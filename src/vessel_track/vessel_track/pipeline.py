@@ -192,7 +192,8 @@ def run_screen_tracks(video: int, screen_frames, camera, config: PipelineConfig)
                                                  target.screen.track_id, target.screen.updated))
     result.counts = {**{f"fuser.{k}": v for k, v in fuser.counts.items()},
                      "selection.switches": fuser.selector.switches, "selection.joins": fuser.selector.joins,
-                     "selection.identity_changes": fuser.selector.identity_changes}
+                     "selection.identity_changes": fuser.selector.identity_changes,
+                     "selection.reacquisitions": fuser.selector.reacquisitions}
     if config.mode == "offline":
         _offline_pass(result, stamps, camera, config)
     return result
@@ -271,6 +272,15 @@ def _joined_target_measurements(rows: list[TrackRow], settings) -> tuple[list[st
     return list(target.members), stamps, z, R, screen
 
 
+def _gap_lengths(stamps: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """For each stamp, the time between the measured stamps either side of it (0 where it is measured itself)."""
+    t = stamps[measured]
+    after = np.searchsorted(t, stamps, side="left")
+    before = np.clip(after - 1, 0, max(t.size - 1, 0))
+    after = np.clip(after, 0, max(t.size - 1, 0))
+    return np.where(measured, 0.0, t[after] - t[before]) if t.size else np.full(stamps.size, np.inf)
+
+
 def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config: PipelineConfig) -> None:
     s = config.settings
     if s.offline.target == "online":
@@ -312,7 +322,10 @@ def _offline_pass(result: VideoResult, frame_stamps: list[float], camera, config
     smoothed = smooth_with_outlier_masking(grid, Z, RR, residual_px, s.offline.outlier_threshold_px,
                                            s.offline.iterations, motion)
     clip = s.fusion.clip_m
+    gap = _gap_lengths(grid, np.isfinite(Z[:, 0]))
     for i, t in enumerate(grid):
+        if s.offline.max_gap_s > 0 and gap[i] > s.offline.max_gap_s:
+            continue
         x, y = np.clip(smoothed.positions[i], -clip, clip)
         if math.hypot(x, y) > s.fusion.max_range_m:
             continue

@@ -82,6 +82,12 @@ class SelectionConfig:
         however much evidence it gathered before (0: off). The screen tracker can move a track that followed the
         vessel of interest onto another boat; its long history would keep it the target while its boxes now say
         it is not the vessel. Online only: the offline pass scores whole trajectories.
+    reacquire_recent_evidence: with ``recent_evidence_s``, while there is no target a track whose confidences of
+        the last ``recent_evidence_s`` seconds sum to at least this many (clipped) log-odds becomes the target,
+        whatever its whole history scores and whatever share of the lost target's score it has (0: off). The
+        network's recent boxes are the evidence that the vessel of interest is back, on a new track or on one that
+        followed another boat before; a history that does not say the vessel of interest (non-positive) is
+        dropped, as at an identity change. Online only.
     appearance_joins: with the ``evidence`` score, an ended track's history is continued (online join) only by a
         track whose first box looks the same way (both likely the vessel of interest, or both not). Online only.
     evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
@@ -115,6 +121,7 @@ class SelectionConfig:
     path_log_floor: float = 0.0
     positive_evidence_only: bool = False
     recent_evidence_s: float = 0.0
+    reacquire_recent_evidence: float = 0.0
     evidence_half_life_s: float = 0.0
     appearance_joins: bool = False
 
@@ -134,6 +141,15 @@ class SelectionConfig:
         if c.size == 0:
             return True
         return float(np.sum(clipped_log_odds(c, self.evidence_clip))) > 0
+
+    def recent_evidence(self, confidences, ages) -> float:
+        """Sum of the clipped log-odds of the confidences of the last ``recent_evidence_s`` (0 when off)."""
+        if self.recent_evidence_s <= 0 or self.confidence_score != "evidence":
+            return 0.0
+        c = np.asarray(confidences, dtype=float).reshape(-1)
+        a = np.asarray(ages, dtype=float).reshape(-1)
+        keep = (a <= self.recent_evidence_s) & np.isfinite(c)
+        return float(np.sum(clipped_log_odds(c[keep], self.evidence_clip))) if keep.any() else 0.0
 
     def eligible_score(self, score: float) -> bool:
         """Whether a trajectory of this score may be the vessel of interest (``positive_evidence_only``)."""
@@ -163,6 +179,14 @@ class SelectionConfig:
             raise DataError(f"selection: path_log_floor must be a finite number >= 0, got {self.path_log_floor!r}")
         if self.history_length < 1:
             raise DataError(f"selection: history_length must be >= 1, got {self.history_length!r}")
+        threshold = self.reacquire_recent_evidence
+        if not (isinstance(threshold, int | float) and math.isfinite(threshold) and threshold >= 0):
+            raise DataError(f"selection: reacquire_recent_evidence must be a finite number of log-odds >= 0 (0: off), "
+                            f"got {threshold!r}")
+        if threshold > 0 and not (self.recent_evidence_s > 0 and self.confidence_score == "evidence"):
+            raise DataError("selection: reacquire_recent_evidence needs confidence_score: evidence and "
+                            "recent_evidence_s > 0 (it sums the confidences of that window); set them, or set "
+                            "reacquire_recent_evidence to 0")
         for name in ("recent_evidence_s", "evidence_half_life_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
@@ -474,6 +498,15 @@ class _Running:
     def recent_evidence_ok(self, config: SelectionConfig, now: float) -> bool:
         return config.recent_evidence_ok(np.fromiter(self.confidences, float), self.ages(now))
 
+    def recent_evidence(self, config: SelectionConfig, now: float) -> float:
+        return config.recent_evidence(np.fromiter(self.confidences, float), self.ages(now))
+
+    def forget_before(self, stamp: float) -> None:
+        """Drop the confidences older than ``stamp``: they belong to what the track followed before."""
+        keep = [(c, t) for c, t in zip(self.confidences, self.confidence_stamps, strict=True) if t >= stamp]
+        self.confidences = deque((c for c, _ in keep), maxlen=self.confidences.maxlen)
+        self.confidence_stamps = deque((t for _, t in keep), maxlen=self.confidence_stamps.maxlen)
+
 
 class OnlineTargetSelector:
     """Running trajectory scores, online joining and a target that changes only for a clear, lasting reason.
@@ -497,6 +530,7 @@ class OnlineTargetSelector:
         self.switches = 0
         self.joins = 0
         self.identity_changes = 0
+        self.reacquisitions = 0
         self._now = math.nan
         #: This frame's continuations, new track id -> the id whose history it took (online joins and handovers):
         #: the fuser continues the world filter with them.
@@ -716,10 +750,6 @@ class OnlineTargetSelector:
                   and self._running[tid].recent_evidence_ok(cfg, stamp)}
         if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg, stamp)):
             self.target = None  # its evidence turned: another boat, not the vessel of interest
-        if not scores:
-            self._challenger = None
-            return self.target if self.target in self._running else None
-        best = max(scores, key=lambda t: (scores[t], t == self.target))
         if self._pending_target is not None:
             if self._pending_target in scores:
                 if self.target != self._pending_target:
@@ -730,6 +760,14 @@ class OnlineTargetSelector:
                 return self.target
             if self._pending_target not in self._running:
                 self._pending_target = None
+        if (self.target is None or self.target not in self._running) and cfg.reacquire_recent_evidence > 0:
+            back = self._reacquired(stamp)
+            if back is not None:
+                return back
+        if not scores:
+            self._challenger = None
+            return self.target if self.target in self._running else None
+        best = max(scores, key=lambda t: (scores[t], t == self.target))
         if self.target is None or self.target not in self._running:
             lost_score = self._lost_score
             if cfg.evidence_half_life_s > 0 and lost_score > 0:
@@ -758,3 +796,25 @@ class OnlineTargetSelector:
             self._challenger = None
             self.switches += 1
         return self.target
+
+    def _reacquired(self, stamp: float) -> str | None:
+        """The established track whose recent boxes say most strongly that the vessel of interest is back.
+
+        Only one whose recent evidence reaches ``reacquire_recent_evidence``; it becomes the target, and a
+        non-positive history before the window is dropped (None: no track says so).
+        """
+        cfg = self.config
+        evidence = {tid: r.recent_evidence(cfg, stamp) for tid, r in self._running.items()
+                    if r.eligible and r.established and r.last_stamp == stamp}
+        evidence = {tid: e for tid, e in evidence.items() if e >= cfg.reacquire_recent_evidence}
+        if not evidence:
+            return None
+        best = max(evidence, key=lambda t: (evidence[t], t))
+        running = self._running[best]
+        if not running.score(cfg, stamp) > 0:
+            running.forget_before(stamp - cfg.recent_evidence_s)
+        self.target = best
+        self._challenger = None
+        self._pending_target = None
+        self.reacquisitions += 1
+        return best

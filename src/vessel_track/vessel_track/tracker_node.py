@@ -21,7 +21,8 @@ from dataclasses import fields
 import numpy as np
 from rclpy.node import Node
 
-from vessel_common.errors import DataError, VesselError
+from vessel_calib.params import node_blocks, read_params_yaml
+from vessel_common.errors import CalibrationError, DataError, VesselError
 from vessel_common.node_support import (
     NodeHealth,
     NodeState,
@@ -123,6 +124,11 @@ def declare_tracker_config(node: Node) -> TrackerConfig:
     return TrackerConfig.from_dict(values)
 
 
+EVERY_CLASS = "*"
+"""The ``classes`` entry that tracks every class (a parameter needs a value: ``ros2 param dump`` answers nothing
+for a node with an unset one)."""
+
+
 def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
                          confidence_class: str = "", with_labels: bool = False):
     """(N, 4) xyxy boxes and (N,) scores of the detections whose class is accepted.
@@ -159,6 +165,30 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
     return (*arrays, labels) if with_labels else arrays
 
 
+def load_detection_inputs(path) -> tuple[frozenset[str] | None, str]:
+    """The tracker node's ``classes`` (None: every class) and ``confidence_class`` from a parameter YAML.
+
+    What the node would declare from the same file, so a tool that re-reads recorded detections (the demo's
+    offline pass) takes the same boxes and the same confidences the node took. A bad value is a DataError.
+    """
+    if path is None:
+        return None, ""
+    try:
+        blocks = read_params_yaml(path)
+    except CalibrationError as error:
+        raise DataError(str(error)) from None
+    values: dict = {}
+    for block in node_blocks(blocks, "tracker"):
+        values.update({k: block[k] for k in ("classes", "confidence_class") if k in block})
+    classes = values.get("classes", [EVERY_CLASS])
+    confidence_class = values.get("confidence_class", "")
+    if not (isinstance(classes, list) and all(isinstance(c, str) for c in classes)):
+        raise DataError(f"{path}: tracker.classes must be a list of class ids, e.g. [boat] or ['*'], got {classes!r}")
+    if not isinstance(confidence_class, str):
+        raise DataError(f"{path}: tracker.confidence_class must be a class id string, got {confidence_class!r}")
+    return (None if not classes or EVERY_CLASS in classes else frozenset(classes)), confidence_class
+
+
 def track_to_msg(state: TrackState, header) -> VesselTrack:
     """A ``VesselTrack`` of one tracker state: screen fields filled, world fields NaN, not the target."""
     msg = VesselTrack()
@@ -193,11 +223,6 @@ def track_to_msg(state: TrackState, header) -> VesselTrack:
     msg.velocity_covariance = [nan] * 4
     msg.latitude = msg.longitude = msg.distance_m = msg.bearing_deg = msg.expected_error_m = nan
     return msg
-
-
-EVERY_CLASS = "*"
-"""The ``classes`` entry that tracks every class (a parameter needs a value: ``ros2 param dump`` answers nothing
-for a node with an unset one)."""
 
 
 class TrackerNode(Node):
