@@ -33,7 +33,9 @@ from vessel_msgs.msg import Detection2DArray  # noqa: E402
 class Probe:
     """A node in its own rclpy context and DDS domain that records what the camera publishes."""
 
-    def __init__(self, context, ack: bool = False) -> None:
+    def __init__(self, context, ack: bool = False, ack_lag: int = 0) -> None:
+        self.ack_lag = ack_lag
+        self._unacked = []
         self.node = rclpy.create_node("camera_test_probe", context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -54,7 +56,9 @@ class Probe:
         self.images.append((stamp(message.header.stamp), bytes(message.data)))
         self.received_at.append(time.monotonic())
         if self.ack_pub is not None:  # play the detector: its output carries the image's header
-            self.ack_pub.publish(Detection2DArray(header=message.header))
+            self._unacked.append(message.header)
+            while len(self._unacked) > self.ack_lag:  # a detector ack_lag images behind
+                self.ack_pub.publish(Detection2DArray(header=self._unacked.pop(0)))
 
     def spin_while(self, process, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
@@ -92,8 +96,8 @@ def start_camera(env: dict[str, str], *params: str, executable: str = "camera") 
 def replay(ros_env, ros_context):
     """``replay(bag, *params, ack=False)``: the camera plays a bag to its end to a probe; (probe, status, output)."""
 
-    def run(bag, *params, ack=False, timeout_s=60.0):
-        probe = Probe(ros_context, ack=ack)
+    def run(bag, *params, ack=False, ack_lag=0, timeout_s=60.0):
+        probe = Probe(ros_context, ack=ack, ack_lag=ack_lag)
         process = start_camera(ros_env, f"source:={bag}", "wait_for_subscribers:=1", "end_linger_s:=0.5", *params)
         try:
             probe.spin_while(process, timeout_s)
@@ -146,6 +150,21 @@ def test_as_fast_as_consumed_with_a_bad_frame(tmp_path, replay):
     assert counts["count.frames_sent"] == "9" and counts["count.frames_bad"] == "1"
     assert counts["count.ack_timeouts"] == "0"  # each frame was released by the detections of the previous one
     assert set(good) <= set(probe.clock) and probe.clock == sorted(probe.clock)
+
+
+@pytest.mark.parametrize(("in_flight", "timeouts"), [(1, 6), (2, 1)])
+def test_frames_in_flight_keep_a_detector_that_answers_one_image_late_busy(tmp_path, replay, in_flight, timeouts):
+    """A detector that sends an image's detections when the next image arrives (``ack_lag`` 1).
+
+    In lock step every image waits out ``ack_timeout_s``; with two in flight each is released by the detections
+    of the one before, and only the last, which no later image releases, waits at the end.
+    """
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=6, frame_step_s=4.0, with_fixes=False)
+    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=0.5", "publish_clock:=false",
+                                   f"frames_in_flight:={in_flight}", ack=True, ack_lag=1)
+    assert status == 0, output
+    assert [s for s, _ in probe.images] == stamps
+    assert probe.camera_counts()["count.ack_timeouts"] == str(timeouts)
 
 
 def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path, replay):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import array
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -223,6 +224,9 @@ class _CameraPhases:
               "(e.g. vessel_msgs/msg/VesselTrackArray to pace on the fuser's /vessel/tracks).")
         param("ack_timeout_s", 2.0, "At rate 0: publish the next frame after this long without detections.",
               float_range=(0.01, 600.0))
+        param("frames_in_flight", 1, "At rate 0: frames published whose detections have not arrived yet. 1 = lock "
+              "step; 2 keeps the next frame waiting at the detector while it works on one, so neither the "
+              "transport nor this node's turn-around idles it.", int_range=(1, 4))
         param("wait_for_subscribers", -1, "Before the first frame, wait until this many subscribers are matched on "
               "the image topic, so no frame is lost while the graph starts. 0 = start at once; -1 = automatic: at "
               "rate 0 wait for one image subscriber and a publisher on ack_topic (the detector), else start at "
@@ -336,6 +340,7 @@ class _CameraPhases:
         last_clock_ns: int | None = None
         last_log = time.monotonic()
         clock_period = 1.0 / self.params["clock_rate_hz"]
+        in_flight: deque[int] = deque()  # stamps of published frames whose detections have not arrived (rate 0)
         for item in self.source:
             if self._stop.is_set():
                 return
@@ -367,13 +372,22 @@ class _CameraPhases:
                     )
                     continue
             if self._publish_frame(item) and self.rate == 0 and not self.live:
-                self._wait_for_ack(item.stamp_ns)
+                in_flight.append(item.stamp_ns)
+                while len(in_flight) >= self.params["frames_in_flight"]:
+                    self._wait_for_ack(in_flight.popleft())
             if 0 < self.params["max_frames"] <= self.stats.sent:
                 self.get_logger().info(f"max_frames={self.params['max_frames']} reached")
+                self._drain(in_flight)
                 return
             if time.monotonic() - last_log > 10.0:
                 last_log = time.monotonic()
                 self.get_logger().info(self._progress_text())
+        self._drain(in_flight)
+
+    def _drain(self, in_flight: deque) -> None:
+        """At the end of a paced replay: wait for the detections of the frames still in flight."""
+        while in_flight and not self._stop.is_set():
+            self._wait_for_ack(in_flight.popleft())
 
     def _sleep_until(
         self, due: float, wall0: float, stamp0: int, next_ns: int, last_clock_ns: int | None, period: float

@@ -81,6 +81,7 @@ DEFAULT_VIDEO = 13
 DEFAULT_FRAMES = 72
 DEFAULT_WARMUP = 3
 DEFAULT_ROUNDS = 3
+DEFAULT_FRAMES_IN_FLIGHT = 2
 RATIO_TARGET = 0.8
 CAMERA_ACK_TIMEOUT_S = 10.0
 """The camera sends the next frame after this long without detections (a lost frame); counted, reported."""
@@ -377,8 +378,9 @@ class GraphSession:
     """
 
     def __init__(self, bag: Path, params_files: list[Path], frames_in_bag: int, warmup: int, domain_id: int,
-                 log_dir: Path, frame_timeout_s: float):
+                 log_dir: Path, frame_timeout_s: float, frames_in_flight: int = 1):
         self.bag = bag
+        self.frames_in_flight = frames_in_flight
         self.frames_in_bag = frames_in_bag
         self.warmup = warmup
         self.domain_id = domain_id
@@ -424,6 +426,7 @@ class GraphSession:
             "max_frames": total,
             "exit_at_end": True,
             "ack_timeout_s": CAMERA_ACK_TIMEOUT_S,
+            "frames_in_flight": self.frames_in_flight,
             "wait_for_subscribers": 2,  # the detector and the watcher
         })
         monitor.add("camera", node_pid(camera.process.pid, self.nodes["camera"].executable))
@@ -551,7 +554,7 @@ def format_table(result: dict) -> str:
         f"vessel bench: video {result['video']}, {graph['frames_measured']}/{result['frames']} frames measured "
         f"(+{result['warmup']} warm-up), detector mode {machine['detector_mode']} "
         f"({machine['windows_per_frame']} network runs/frame), onnxruntime {machine['onnxruntime_version']} "
-        f"{machine['onnxruntime_threads']} threads",
+        f"{machine['onnxruntime_threads']} threads, {result.get('frames_in_flight', 1)} frame(s) in flight",
         f"machine: {machine['cores']} cores ({machine['cpu_model']}), load average before "
         + " ".join(f"{v:.2f}" for v in machine["load_average_before"])
         + ", after " + " ".join(f"{v:.2f}" for v in machine["load_average_after"]),
@@ -650,6 +653,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "there if missing)")
     parser.add_argument("--log-dir", type=Path, default=None, help="node logs go to DIR/<node>.log (default: a "
                         "temporary folder, named in error messages)")
+    parser.add_argument("--frames-in-flight", type=int, default=DEFAULT_FRAMES_IN_FLIGHT, choices=range(1, 5),
+                        metavar="N", help="images the camera publishes ahead of the detections that release them "
+                        f"(its frames_in_flight; default {DEFAULT_FRAMES_IN_FLIGHT}: the next image waits at the "
+                        "detector, which never idles on the transport; 1: lock step, each image after the "
+                        "previous one's detections)")
     parser.add_argument("--frame-timeout", type=float, default=60.0, help="give up when no frame comes out of the "
                         "graph for this many seconds (default 60)")
     args = parser.parse_args(argv)
@@ -716,7 +724,8 @@ def run(args: argparse.Namespace) -> dict:
     windows = core.windows_per_frame()
 
     log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="vessel_bench_"))
-    session = GraphSession(bag, params_files, len(bag_frames), args.warmup, domain_id, log_dir, args.frame_timeout)
+    session = GraphSession(bag, params_files, len(bag_frames), args.warmup, domain_id, log_dir, args.frame_timeout,
+                           frames_in_flight=args.frames_in_flight)
     core_rounds: list[CoreTimes] = []
     try:
         session.start()
@@ -767,6 +776,7 @@ def _result(args, video, bag, params_files, rounds, core, times, core_rounds, gr
         "frames": args.frames,
         "warmup": args.warmup,
         "rounds": len(rounds),
+        "frames_in_flight": args.frames_in_flight,
         "bag": str(bag),
         "params_files": [str(p) for p in params_files],
         "detector_core": {
