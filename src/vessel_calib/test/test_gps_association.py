@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vessel_calib import geodesy
-from vessel_calib.gps_association import FrameBoxes, SearchOptions, associate_and_calibrate
+from vessel_calib.gps_association import FrameBoxes, SearchOptions, associate_and_calibrate, measure_box_anchor
 from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
 from vessel_common.errors import CalibrationError
 
@@ -87,6 +87,40 @@ def test_search_options_are_checked():
         SearchOptions(min_associations=3).checked()
 
 
+def _graph_boxes(camera, frames, anchor: float, height_px: float = 20.0):
+    """Boxes of another detector: the vessel's GPS ``anchor`` of the way down (p 0.9), and a boat beside it (p 0.1)."""
+    boxes, probabilities = [], []
+    for f in frames:
+        if not math.isfinite(f.lat):
+            boxes.append(np.zeros((0, 4)))
+            probabilities.append(np.zeros(0))
+            continue
+        xs, ys, _ = camera.gps_to_screen(f.lat, f.lon)
+        xs, ys = float(xs), float(ys)
+        vessel = [xs - 15, ys - anchor * height_px, xs + 15, ys + (1 - anchor) * height_px]
+        beside = [xs - 10, ys - 5, xs + 10, ys + 5]  # a likelier box position, but another boat
+        boxes.append(np.array([vessel, beside]))
+        probabilities.append(np.array([0.9, 0.1]))
+    return boxes, probabilities
+
+
+def test_the_box_anchor_of_another_detector_is_measured_from_the_gps():
+    truth = pinhole_camera(height_m=4.0, heading_deg=76.0, tilt_down_deg=-1.0, focal_px=950.0, K1=-3.5e-7)
+    frames = search_frames(truth, seed=3)
+    gps = [(f.lat, f.lon) for f in frames]
+    boxes, probabilities = _graph_boxes(truth, frames, anchor=0.55)
+    found = measure_box_anchor(truth, gps, None, boxes, probabilities)
+    seen = [math.isfinite(f.lat) and truth.in_image(*truth.gps_to_screen(f.lat, f.lon)[:2]) for f in frames]
+    assert found.anchor == pytest.approx(0.55, abs=1e-6) and found.frames == sum(seen)
+    # Of the boxes around the GPS that the detector calls the vessel of interest, the likeliest gives the anchor ...
+    likelier_beside = [np.where(p > 0.5, 0.6, 0.95) for p in probabilities]
+    assert measure_box_anchor(truth, gps, None, boxes, likelier_beside).anchor == pytest.approx(0.5, abs=1e-6)
+    # ... and a box it does not call the vessel of interest never counts.
+    assert measure_box_anchor(truth, gps, None, boxes, [np.full_like(p, 0.1) for p in probabilities]) is None
+    with pytest.raises(CalibrationError, match="one of each per frame"):
+        measure_box_anchor(truth, gps[:-1], None, boxes, probabilities)
+
+
 # --------------------------------------------------------------------------- the calibrate command without labels
 def _cli(args, capsys):
     from vessel_tools import calibrate as calibrate_tool
@@ -113,6 +147,37 @@ def test_calibrate_a_folder_without_labels(tmp_path, capsys):
     model = load_camera_yaml(out)
     assert abs(model.heading_deg - 76.0) < 0.2
     assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_a_folder_without_labels_gets_the_graph_detector_s_box_anchor(tmp_path, capsys):
+    """The search reads its detector's boxes at 0.65; the graph's detector sits the GPS 0.55 down its boxes."""
+    from vessel_calib.params import load_camera_yaml
+    from vessel_calib.synthetic import write_search_folder
+
+    frames = search_frames(_truth(), seed=3)
+    detections = write_search_folder(tmp_path / "data", frames)
+    boxes, probabilities = _graph_boxes(_truth(), frames, anchor=0.55)
+    rows = ["video,frame,x1,y1,x2,y2,score,class_id,p_target"]
+    for f, frame_boxes, frame_p in zip(frames, boxes, probabilities, strict=True):
+        rows += [f"{f.video + 1},{f.frame * 100},{b[0]:.2f},{b[1]:.2f},{b[2]:.2f},{b[3]:.2f},0.8,0,{p}"
+                 for b, p in zip(frame_boxes, frame_p, strict=True)]
+    graph = tmp_path / "graph.csv"
+    graph.write_text("\n".join(rows) + "\n")
+    common = ["--data", tmp_path / "data", "--videos", "1-5", "--detections", detections, "--hypotheses", 20000]
+    status, stdout, err = _cli([*common, "--graph-detections", graph, "--out", tmp_path / "a.yaml"], capsys)
+    assert status == 0, err
+    assert "the vessel's GPS falls 0.5" in stdout and "the search read its own boxes at 0.65" in stdout
+    assert load_camera_yaml(tmp_path / "a.yaml").box_anchor == pytest.approx(0.55, abs=0.03)
+    common[-1] = 5000  # quicker; the camera found is not what the rest is about
+    status, stdout, err = _cli([*common, "--graph-detections", graph, "--keep-box-anchor", "--no-picture",
+                                "--out", tmp_path / "b.yaml"], capsys)
+    assert status == 0 and load_camera_yaml(tmp_path / "b.yaml").box_anchor == 0.65
+    # Frames the graph's detector cannot read (this folder has no images): said, and the search's anchor kept.
+    status, stdout, err = _cli([*common, "--no-picture", "--out", tmp_path / "c.yaml"], capsys)
+    assert status == 0, err
+    assert "box_anchor stays 0.65" in stdout and "could not be read" in err
+    assert load_camera_yaml(tmp_path / "c.yaml").box_anchor == 0.65
 
 
 @pytest.mark.parametrize("case, match", [

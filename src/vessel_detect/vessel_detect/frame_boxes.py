@@ -24,11 +24,13 @@ from vessel_common.errors import DataError
 from vessel_common.paths import repo_file
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 from vessel_detect.detector import VesselDetector
-from vessel_detect.detector_params import detector_config, load_params_file, open_model
+from vessel_detect.detector_params import build_detector, detector_config, load_params_file, open_model
 from vessel_detect.sources import VideoSource
 
 #: The generic detector's parameters (its cue and masks are left out).
 DEFAULT_DETECTOR_PARAMS = "config/detector_coco.yaml"
+#: The graph's parameter file: its detector makes the boxes the fuser reads.
+GRAPH_PARAMS = "config/aitas.yaml"
 
 
 def calibration_free_detector(params_path: str | None, image_wh: tuple[int, int]):
@@ -158,3 +160,44 @@ def _save_detections(path, rows: Iterable[tuple[int, int, np.ndarray, np.ndarray
             count += 1
     atomic_write_text(Path(path), out.getvalue())
     print(f"wrote {path} ({count} boxes)", file=sys.stderr)
+
+
+def graph_detector_boxes(records, camera, params_path: str | None = None, detections: str | None = None
+                         ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """(video, frame) -> (boxes (k, 4), probability of being the vessel of interest (k,)) of the graph's detector.
+
+    ``records``: the frames (``dataset.frames``); ``camera``: the calibration it runs with (its band below the
+    horizon, its cue). ``params_path``: the graph's parameter file (default ``config/aitas.yaml``);
+    ``detections``: a ``detect run`` CSV of that detector instead of running it (its ``p_target`` column).
+    """
+    if detections:
+        table = read_detections_csv(detections, "write one with `./vessel detect run --params P --calib C`")
+        empty = (np.zeros((0, 4)), np.zeros(0))
+        return {(r.video, r.frame): table.get((r.video, r.frame), empty) for r in records}
+    import cv2
+
+    path = params_path or repo_file(GRAPH_PARAMS)
+    if path is None:
+        raise DataError(f"{GRAPH_PARAMS} not found: give the graph's parameter file")
+    values, _ = load_params_file(path)
+    detector = build_detector(values, camera)
+    out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    unreadable: list[Path] = []
+    started = time.monotonic()
+    for index, record in enumerate(records, start=1):
+        path = Path(record.path) if record.path else None
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path is not None and path.is_file() else None
+        if image is None or not image.size:
+            unreadable.append(path)
+            out[(record.video, record.frame)] = (np.zeros((0, 4)), np.zeros(0))
+            continue
+        found = detector.detect(image)
+        p = np.where(np.isfinite(found.p_target), found.p_target, found.scores)
+        out[(record.video, record.frame)] = (found.boxes_xyxy, p)
+        if index % 10 == 0 or index == len(records):
+            _progress(index, len(records), started)
+    print(file=sys.stderr)
+    if unreadable:
+        print(f"warning: {len(unreadable)} of {len(records)} frames could not be read (first: {unreadable[0]}); "
+              "they count as frames without a box", file=sys.stderr)
+    return out

@@ -159,6 +159,14 @@ def build_parser() -> argparse.ArgumentParser:
     search.add_argument("--max-camera-offset", type=float, default=SearchOptions.max_nadir_m,
                         help="refuse a camera standing further than this from --camera-lat/--camera-lon, m (default "
                              f"{SearchOptions.max_nadir_m:g})")
+    graph = p.add_argument_group("the graph's boxes (--from detections on a data folder)")
+    graph.add_argument("--graph-params", help="the graph's parameter file (default config/aitas.yaml): where the "
+                       "vessel's GPS falls down its detector's boxes, through the camera found, becomes "
+                       "camera.box_anchor, the point the fuser reads them at")
+    graph.add_argument("--graph-detections", help="a `detect run` CSV of that detector over the same frames (its "
+                       "p_target), instead of running it")
+    graph.add_argument("--keep-box-anchor", action="store_true", help="write --box-anchor (the search detector's) "
+                       "instead of measuring the graph detector's")
     study = p.add_argument_group("study")
     study.add_argument("--evaluate-on", help="videos to evaluate on (e.g. 13-17): validation figures")
     study.add_argument("--draws", type=int, help="repeat the fit on this many random draws of --pairs pairs")
@@ -430,6 +438,7 @@ def run(args) -> int:
     result = calibrate(pairs.screen, pairs.gps, camera_lat, camera_lon, pairs.image_size, pairs.center, options,
                        box_anchor=args.box_anchor, water_levels=levels)
     _report_fit(args, pairs, available, result, options, levels, camera_lat, camera_lon)
+    result = _graph_box_anchor(args, ds, pairs, result, water_level)
     eval_pairs = _evaluate(args, ds, result, water_level, all_screen, all_gps, camera_lat, camera_lon, pairs, options)
     _write(args, pairs, result, ds, eval_pairs)
     return 0
@@ -481,6 +490,52 @@ def _collect_pairs(args, ds, camera_lat: float, camera_lon: float, water_level) 
             pairs.source = (f"{ds.path} videos {spec} without labels ({association.associated} frames associated "
                             "from detections)")
     return pairs
+
+
+#: Fewest frames whose graph-detector box gives the box anchor; with fewer the search detector's anchor is kept.
+MIN_ANCHOR_FRAMES = 12
+
+
+def _graph_box_anchor(args, ds, pairs: _Pairs, result, water_level):
+    """A label-free fit on a data folder: ``camera.box_anchor`` becomes where the GPS falls down the graph's boxes.
+
+    The search reads the generic detector's boxes (often the cabin without the hull) at ``--box-anchor``; the
+    fuser will read the graph detector's boxes, which sit on the vessel in their own way, at the calibration's
+    ``box_anchor``. Measured from the vessel's GPS through the camera just found: no label enters.
+    """
+    if pairs.association is None or ds is None or pairs.videos is None or args.keep_box_anchor \
+            or args.pairs_from == "both" or _pairs_source(args.pairs_from, ds) != "detections":
+        return result
+    from vessel_calib.camera_model import CameraModel
+    from vessel_calib.gps_association import measure_box_anchor
+
+    frame_boxes = _frame_boxes_module()
+    track = ds.gps_track()
+    records = ds.frames(pairs.videos)
+    lat, lon, valid = track.interpolate(np.array([r.stamp for r in records], dtype=float), max_gap_s=args.max_gap_s)
+    records = [r for r, ok in zip(records, valid, strict=True) if ok]
+    gps = np.column_stack([lat[valid], lon[valid]])
+    graph_params = args.graph_params or str(repo_root() / frame_boxes.GRAPH_PARAMS)
+    print(f"calibrate: the graph's detector ({args.graph_detections or graph_params}) over {len(records)} frames, "
+          "for the point of its boxes the fuser reads", flush=True)
+    boxes = frame_boxes.graph_detector_boxes(records, result.model, graph_params, args.graph_detections)
+    keys = [(r.video, r.frame) for r in records]
+    levels = None if water_level is None else water_level.level_at(np.array([r.stamp for r in records]))
+    found = measure_box_anchor(result.model, gps, levels, [boxes[k][0] for k in keys], [boxes[k][1] for k in keys])
+    if found is None or found.frames < MIN_ANCHOR_FRAMES:
+        print(f"calibrate: warning: the graph's detector called a box around the vessel's GPS the vessel of interest "
+              f"in {0 if found is None else found.frames} frames (fewer than {MIN_ANCHOR_FRAMES}); box_anchor stays "
+              f"{args.box_anchor:g}, the search detector's. Check the graph's detector (--graph-params), or pass "
+              "--keep-box-anchor to silence this")
+        return result
+    anchor = round(found.anchor, 3)
+    print(f"calibrate: box_anchor {anchor:g}: the vessel's GPS falls {anchor:g} of the way down the graph detector's "
+          f"boxes (quartiles {found.quartiles[0]:.3f}-{found.quartiles[1]:.3f}, {found.frames} frames); the search "
+          f"read its own boxes at {args.box_anchor:g}")
+    model = CameraModel.from_params({**result.model.to_params(), "box_anchor": anchor})
+    pairs.source += (f"; box_anchor {anchor:g} measured on the graph detector's boxes of {found.frames} frames "
+                     f"({Path(args.graph_detections or graph_params).name})")
+    return replace(result, model=model)
 
 
 def _draw_pairs(args, pairs: _Pairs) -> None:
