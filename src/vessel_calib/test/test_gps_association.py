@@ -169,6 +169,7 @@ def test_a_folder_without_labels_gets_the_graph_detector_s_box_anchor(tmp_path, 
     assert status == 0, err
     assert "the vessel's GPS falls 0.5" in stdout and "the search read its own boxes at 0.65" in stdout
     assert load_camera_yaml(tmp_path / "a.yaml").box_anchor == pytest.approx(0.55, abs=0.03)
+    assert "of the way down the graph detector's boxes through H" in (tmp_path / "a.yaml").read_text()
     common[-1] = 5000  # quicker; the camera found is not what the rest is about
     status, stdout, err = _cli([*common, "--graph-detections", graph, "--keep-box-anchor", "--no-picture",
                                 "--out", tmp_path / "b.yaml"], capsys)
@@ -178,6 +179,17 @@ def test_a_folder_without_labels_gets_the_graph_detector_s_box_anchor(tmp_path, 
     assert status == 0, err
     assert "box_anchor stays 0.65" in stdout and "could not be read" in err
     assert load_camera_yaml(tmp_path / "c.yaml").box_anchor == 0.65
+
+
+def test_a_mistyped_graph_detections_file_is_refused_before_the_search(tmp_path, capsys):
+    from vessel_calib.synthetic import write_search_folder
+
+    detections = write_search_folder(tmp_path / "data", search_frames(_truth(), seed=3))
+    out = tmp_path / "cal" / "camera.yaml"
+    status, stdout, err = _cli(["--data", tmp_path / "data", "--videos", "1-5", "--detections", detections,
+                                "--graph-detections", tmp_path / "grpah.csv", "--out", out], capsys)
+    assert status == 2 and err.startswith("error: --graph-detections") and "no such file" in err
+    assert "searching" not in stdout and not out.parent.exists()
 
 
 @pytest.mark.parametrize("case, match", [

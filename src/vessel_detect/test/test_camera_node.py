@@ -33,8 +33,9 @@ from vessel_msgs.msg import Detection2DArray  # noqa: E402
 class Probe:
     """A node in its own rclpy context and DDS domain that records what the camera publishes."""
 
-    def __init__(self, context, ack: bool = False, ack_lag: int = 0) -> None:
+    def __init__(self, context, ack: bool = False, ack_lag: int = 0, unanswered: frozenset = frozenset()) -> None:
         self.ack_lag = ack_lag
+        self.unanswered = unanswered  # indices of the images this detector never answers (it dropped them)
         self._unacked = []
         self.node = rclpy.create_node("camera_test_probe", context=context)
         self.executor = SingleThreadedExecutor(context=context)
@@ -56,7 +57,8 @@ class Probe:
         self.images.append((stamp(message.header.stamp), bytes(message.data)))
         self.received_at.append(time.monotonic())
         if self.ack_pub is not None:  # play the detector: its output carries the image's header
-            self._unacked.append(message.header)
+            if len(self.images) - 1 not in self.unanswered:
+                self._unacked.append(message.header)
             while len(self._unacked) > self.ack_lag:  # a detector ack_lag images behind
                 self.ack_pub.publish(Detection2DArray(header=self._unacked.pop(0)))
 
@@ -96,8 +98,8 @@ def start_camera(env: dict[str, str], *params: str, executable: str = "camera") 
 def replay(ros_env, ros_context):
     """``replay(bag, *params, ack=False)``: the camera plays a bag to its end to a probe; (probe, status, output)."""
 
-    def run(bag, *params, ack=False, ack_lag=0, timeout_s=60.0):
-        probe = Probe(ros_context, ack=ack, ack_lag=ack_lag)
+    def run(bag, *params, ack=False, ack_lag=0, unanswered=frozenset(), timeout_s=60.0):
+        probe = Probe(ros_context, ack=ack, ack_lag=ack_lag, unanswered=unanswered)
         process = start_camera(ros_env, f"source:={bag}", "wait_for_subscribers:=1", "end_linger_s:=0.5", *params)
         try:
             probe.spin_while(process, timeout_s)
@@ -160,11 +162,23 @@ def test_frames_in_flight_keep_a_detector_that_answers_one_image_late_busy(tmp_p
     of the one before, and only the last, which no later image releases, waits at the end.
     """
     stamps = synthetic.write_bag(tmp_path / "bag", frames=6, frame_step_s=4.0, with_fixes=False)
-    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=0.5", "publish_clock:=false",
+    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=1.0", "publish_clock:=false",
                                    f"frames_in_flight:={in_flight}", ack=True, ack_lag=1)
     assert status == 0, output
     assert [s for s, _ in probe.images] == stamps
     assert probe.camera_counts()["count.ack_timeouts"] == str(timeouts)
+
+
+def test_a_frame_whose_detections_never_come_is_counted(tmp_path, replay):
+    """With two in flight, the detector may drop an image for the next one: the next one's detections release it."""
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=6, frame_step_s=4.0, with_fixes=False)
+    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=5.0", "publish_clock:=false",
+                                   "frames_in_flight:=2", ack=True, unanswered=frozenset({2}))
+    assert status == 0, output
+    assert [s for s, _ in probe.images] == stamps
+    counts = probe.camera_counts()
+    assert counts["count.frames_unanswered"] == "1" and counts["count.ack_timeouts"] == "0"
+    assert "1 without detections" in output
 
 
 def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path, replay):

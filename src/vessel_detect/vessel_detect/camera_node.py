@@ -52,6 +52,7 @@ class ReplayStats:
     bad: int = 0
     aux_sent: int = 0
     ack_timeouts: int = 0
+    unanswered: int = 0
     late: int = 0
 
 
@@ -68,7 +69,8 @@ class _CameraPhases:
         self.health = NodeHealth(self, hardware_id="camera")
         self.stats = ReplayStats()
         # Every key exists before the replay thread starts: the diagnostics timer iterates these dicts.
-        kinds = ("frames_sent", "frames_dropped", "frames_bad", "frames_late", "ack_timeouts", "aux_sent", "aux_bad")
+        kinds = ("frames_sent", "frames_dropped", "frames_bad", "frames_late", "ack_timeouts", "frames_unanswered",
+                 "aux_sent", "aux_bad")
         for kind in kinds:
             self.health.count(kind, 0)
         for key in ("progress", "source", "stamp", "rate"):
@@ -78,6 +80,7 @@ class _CameraPhases:
         self._stop = threading.Event()
         self._ack = threading.Condition()
         self._acked_ns: int | None = None
+        self._acked_recent: deque[int] = deque(maxlen=64)  # stamps whose detections arrived
         self.source: ImageSource | None = None
         self._worker: threading.Thread | None = None
         self._publishers: list = []
@@ -226,7 +229,8 @@ class _CameraPhases:
               float_range=(0.01, 600.0))
         param("frames_in_flight", 1, "At rate 0: frames published whose detections have not arrived yet. 1 = lock "
               "step; 2 keeps the next frame waiting at the detector while it works on one, so neither the "
-              "transport nor this node's turn-around idles it.", int_range=(1, 4))
+              "transport nor this node's turn-around idles it (the detector keeps one image waiting: more would be "
+              "dropped).", int_range=(1, 2))
         param("wait_for_subscribers", -1, "Before the first frame, wait until this many subscribers are matched on "
               "the image topic, so no frame is lost while the graph starts. 0 = start at once; -1 = automatic: at "
               "rate 0 wait for one image subscriber and a publisher on ack_topic (the detector), else start at "
@@ -266,6 +270,7 @@ class _CameraPhases:
     def _on_ack(self, message) -> None:
         with self._ack:
             self._acked_ns = stamp_ns(message.header.stamp)
+            self._acked_recent.append(self._acked_ns)
             self._ack.notify_all()
 
     def _publish_parameter_fix(self) -> None:
@@ -407,6 +412,11 @@ class _CameraPhases:
                 self._stop.wait(due - now)
 
     def _wait_for_ack(self, stamp_ns: int) -> None:
+        """Until the detections of the frame at ``stamp_ns`` (or a later one) arrive, or ``ack_timeout_s``.
+
+        Detections of a later frame alone mean this one got none (the detector keeps only its newest image):
+        counted as ``frames_unanswered``.
+        """
         deadline = time.monotonic() + self.params["ack_timeout_s"]
         with self._ack:
             while self._acked_ns is None or self._acked_ns < stamp_ns:
@@ -416,6 +426,9 @@ class _CameraPhases:
                     self.health.count("ack_timeouts")
                     return
                 self._ack.wait(min(remaining, 0.1))
+            if stamp_ns not in self._acked_recent:
+                self.stats.unanswered += 1
+                self.health.count("frames_unanswered")
 
     def _publish_clock(self, stamp_ns: int) -> None:
         self.clock_pub.publish(Clock(clock=time_msg(stamp_ns)))
@@ -480,6 +493,7 @@ class _CameraPhases:
             f"frame {self._progress_value()}: sent {s.sent}, dropped {s.dropped}, bad {s.bad}"
             + (f", late {s.late}" if s.late else "")
             + (f", ack timeouts {s.ack_timeouts}" if s.ack_timeouts else "")
+            + (f", unanswered {s.unanswered}" if s.unanswered else "")
         )
 
     def _end(self) -> None:
@@ -488,6 +502,7 @@ class _CameraPhases:
             f"{self.source.description} ended: sent {s.sent} frames, dropped {s.dropped}, bad {s.bad}, "
             f"{s.aux_sent} other messages" + (f", {s.late} late" if s.late else "")
             + (f", {s.ack_timeouts} ack timeouts" if s.ack_timeouts else "")
+            + (f", {s.unanswered} without detections (a later frame's came)" if s.unanswered else "")
         )
         if self._shutting_down():
             return

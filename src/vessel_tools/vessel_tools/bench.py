@@ -653,7 +653,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "there if missing)")
     parser.add_argument("--log-dir", type=Path, default=None, help="node logs go to DIR/<node>.log (default: a "
                         "temporary folder, named in error messages)")
-    parser.add_argument("--frames-in-flight", type=int, default=DEFAULT_FRAMES_IN_FLIGHT, choices=range(1, 5),
+    parser.add_argument("--frames-in-flight", type=int, default=DEFAULT_FRAMES_IN_FLIGHT, choices=(1, 2),
                         metavar="N", help="images the camera publishes ahead of the detections that release them "
                         f"(its frames_in_flight; default {DEFAULT_FRAMES_IN_FLIGHT}: the next image waits at the "
                         "detector, which never idles on the transport; 1: lock step, each image after the "

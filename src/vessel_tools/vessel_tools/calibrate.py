@@ -62,7 +62,7 @@ from vessel_calib.gps_association import SearchOptions, associate_and_calibrate
 from vessel_calib.gps_track import GpsTrack, parse_time
 from vessel_calib.params import read_params_yaml, write_camera_yaml
 from vessel_common.command_line import command_line_tool
-from vessel_common.errors import CalibrationError, DataError
+from vessel_common.errors import CalibrationError, DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos, repo_root
 
 if TYPE_CHECKING:
@@ -402,6 +402,7 @@ class _Pairs:
     videos: list[int] | None = None
     association: Any = None
     picture_frame: Any = None
+    anchor_note: str = ""  # how box_anchor was measured, when it is not the boxes' the fit read
 
 
 def run(args) -> int:
@@ -424,6 +425,7 @@ def run(args) -> int:
     if not 0.0 <= args.box_anchor <= 1.0:  # NaN fails too
         raise CalibrationError(f"--box-anchor (camera.box_anchor) must be a number in [0, 1] (0 box top, 0.5 centre, "
                                f"1 bottom), got {args.box_anchor}")
+    _check_graph_inputs(args)
     water_level = None
     if args.water_level:
         from vessel_calib.water_level import load_water_level
@@ -503,8 +505,10 @@ def _graph_box_anchor(args, ds, pairs: _Pairs, result, water_level):
     fuser will read the graph detector's boxes, which sit on the vessel in their own way, at the calibration's
     ``box_anchor``. Measured from the vessel's GPS through the camera just found: no label enters.
     """
-    if pairs.association is None or ds is None or pairs.videos is None or args.keep_box_anchor \
-            or args.pairs_from == "both" or _pairs_source(args.pairs_from, ds) != "detections":
+    if not _graph_anchor_applies(args, ds, pairs):
+        if args.graph_params or args.graph_detections:
+            print("calibrate: warning: --graph-params/--graph-detections are used by a label-free fit of a data "
+                  "folder (--from detections) only; ignored here")
         return result
     from vessel_calib.camera_model import CameraModel
     from vessel_calib.gps_association import measure_box_anchor
@@ -518,7 +522,13 @@ def _graph_box_anchor(args, ds, pairs: _Pairs, result, water_level):
     graph_params = args.graph_params or str(repo_root() / frame_boxes.GRAPH_PARAMS)
     print(f"calibrate: the graph's detector ({args.graph_detections or graph_params}) over {len(records)} frames, "
           "for the point of its boxes the fuser reads", flush=True)
-    boxes = frame_boxes.graph_detector_boxes(records, result.model, graph_params, args.graph_detections)
+    try:
+        boxes = frame_boxes.graph_detector_boxes(records, result.model, graph_params, args.graph_detections)
+    except VesselError as error:  # the camera is found: say why its anchor is kept rather than lose the fit
+        print(f"calibrate: warning: the graph's detector could not run ({error}); box_anchor stays "
+              f"{args.box_anchor:g}, the search detector's. Fix --graph-params/--graph-detections, or pass "
+              "--keep-box-anchor")
+        return result
     keys = [(r.video, r.frame) for r in records]
     levels = None if water_level is None else water_level.level_at(np.array([r.stamp for r in records]))
     found = measure_box_anchor(result.model, gps, levels, [boxes[k][0] for k in keys], [boxes[k][1] for k in keys])
@@ -528,6 +538,11 @@ def _graph_box_anchor(args, ds, pairs: _Pairs, result, water_level):
               f"{args.box_anchor:g}, the search detector's. Check the graph's detector (--graph-params), or pass "
               "--keep-box-anchor to silence this")
         return result
+    if not 0.0 <= found.anchor <= 1.0:
+        print(f"calibrate: warning: the vessel's GPS falls {found.anchor:.3f} of the way down the graph detector's "
+              f"boxes, outside them (0 top, 1 bottom; {found.frames} frames); box_anchor stays {args.box_anchor:g}. "
+              "Its boxes may hold part of the vessel only")
+        return result
     anchor = round(found.anchor, 3)
     print(f"calibrate: box_anchor {anchor:g}: the vessel's GPS falls {anchor:g} of the way down the graph detector's "
           f"boxes (quartiles {found.quartiles[0]:.3f}-{found.quartiles[1]:.3f}, {found.frames} frames); the search "
@@ -535,7 +550,24 @@ def _graph_box_anchor(args, ds, pairs: _Pairs, result, water_level):
     model = CameraModel.from_params({**result.model.to_params(), "box_anchor": anchor})
     pairs.source += (f"; box_anchor {anchor:g} measured on the graph detector's boxes of {found.frames} frames "
                      f"({Path(args.graph_detections or graph_params).name})")
+    pairs.anchor_note = (f"box_anchor {anchor:g}: the vessel's GPS falls {anchor:g} of the way down the graph "
+                         f"detector's boxes through H (median of {found.frames} frames); H was fitted on the search "
+                         f"detector's boxes read at {args.box_anchor:g}; the fuser reads boxes at {anchor:g}.")
     return replace(result, model=model)
+
+
+def _graph_anchor_applies(args, ds, pairs: _Pairs) -> bool:
+    """Whether the fit is label-free on a data folder, so the graph detector's box anchor is measured."""
+    return (pairs.association is not None and ds is not None and pairs.videos is not None
+            and not args.keep_box_anchor and args.pairs_from != "both"
+            and _pairs_source(args.pairs_from, ds) == "detections")
+
+
+def _check_graph_inputs(args) -> None:
+    """A mistyped --graph-params/--graph-detections is refused before the search, not after it."""
+    for option, value in (("--graph-params", args.graph_params), ("--graph-detections", args.graph_detections)):
+        if value and not Path(value).is_file():
+            raise DataError(f"{option} {value}: no such file; give an existing file or leave the option out")
 
 
 def _draw_pairs(args, pairs: _Pairs) -> None:
@@ -634,7 +666,7 @@ def _write(args, pairs: _Pairs, result, ds, eval_pairs) -> None:
     if out.suffix.lower() not in (".yaml", ".yml"):
         raise CalibrationError(f"--out must be a .yaml file, got {out}")
     picture = None if args.no_picture else Path(args.picture) if args.picture else out.with_suffix(".png")
-    header = _yaml_header(result, pairs.source, sys.argv)
+    header = _yaml_header(result, pairs.source, sys.argv, pairs.anchor_note)
     overlay = {}
     if pairs.association is not None:
         overlay = {"boxes": pairs.association.boxes(), "track_gps": pairs.association.track_gps(),
@@ -735,8 +767,11 @@ def _frame_boxes_module():
     return frame_boxes
 
 
-def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
+def _yaml_header(result: CalibrationResult, source: str, argv, anchor_note: str = "") -> str:
     f = result.figures
+    anchor_line = anchor_note or (
+        f"box_anchor {result.model.box_anchor:g}: H maps the point {result.model.box_anchor:g} of the way down a "
+        "vessel's box (0 top, 0.5 centre) to its GPS; the fuser reads boxes there.")
     return "\n".join([
         "Camera calibration written by vessel_tools calibrate (load with --params-file).",
         f"command: calibrate {' '.join(shlex.quote(a) for a in argv[1:])}",
@@ -745,8 +780,7 @@ def _yaml_header(result: CalibrationResult, source: str, argv) -> str:
         f"back-projected median {f.backproj_median_m:.2f} m, p80 {f.backproj_p80_m:.2f} m",
         "H: z_p (x_p, y_p, 1) = H (x_w, y_w, 1), world metres east/north of (camera_lat, camera_lon), z_p < 0 in "
         "front; K1: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2).",
-        f"box_anchor {result.model.box_anchor:g}: H maps the point {result.model.box_anchor:g} of the way down a "
-        "vessel's box (0 top, 0.5 centre) to its GPS; the fuser reads boxes there.",
+        anchor_line,
         "heading_deg, horizon_* are derived from H (informational).",
     ] + ([f"water_level_m {result.model.water_level_m:.4f}: H belongs to the sea at this level of the water-level "
           f"file; height_m {result.model.height_m:.3f}: the camera's height above it (derived from H); the fuser "

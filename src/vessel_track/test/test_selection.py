@@ -392,12 +392,40 @@ def test_reacquisition_drops_only_a_history_that_says_another_boat():
                for k in range(6, 9)]
     assert targets == [None, None, "C"] and selector.score("C") > 0  # its earlier history is gone
     assert selector.update(36.0, [_wt("C", [336, 0], conf=0.9, velocity=(1.0, 0))]) == "C"  # and it stays the target
-    # A history that says the vessel is kept: a new track's positive evidence is not cut to the window.
+    # A history that says the vessel is kept: D had boxes at p 0.6 while A was the target, too little to stand in
+    # for A when A ended; its next boxes at p 0.9 bring the role, and its older boxes still count.
     selector = OnlineTargetSelector(config)
-    for k in range(6):
-        selector.update(4.0 * k, [_wt("D", [300 + 4.0 * k, 0], conf=0.9, velocity=(1.0, 0))])
-    assert selector.target == "D" and selector.score("D") == pytest.approx(
-        6 * math.log(9.0) * max(math.log(20.0), 1.0), rel=1e-6)
+    for k in range(10):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], conf=0.9, velocity=(2.0, 0)),
+                                  _wt("D", [300 + 4.0 * k, 0], conf=0.6, velocity=(1.0, 0))])
+    assert selector.target == "A"
+    target = selector.update(40.0, [_wt("A", [180, 50], status=3), _wt("D", [340, 0], conf=0.6, velocity=(1.0, 0))])
+    assert target is None  # D has not a tenth of A's score: no stand-in
+    target = selector.update(44.0, [_wt("D", [344, 0], conf=0.9, velocity=(1.0, 0))])
+    assert target == "D" and selector.reacquisitions == 1
+    assert len(selector._running["D"].confidences) == 12  # nothing forgotten
+
+
+def test_the_track_dropped_for_its_boxes_does_not_take_the_role_back_with_one_good_box():
+    """The boxes that made the target lose the role still count in the window of the same track."""
+    config = _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)
+    selector = OnlineTargetSelector(config)
+    for k in range(10):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], conf=0.8, velocity=(2.0, 0))])
+    published = [selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], conf=c, velocity=(2.0, 0))])
+                 for k, c in ((10, 0.05), (11, 0.9), (12, 0.9), (13, 0.9))]
+    # t 40: dropped. t 44: +2.20 (p 0.9) against -2.94 (p 0.05) and +1.39 (p 0.8) still in the 8 s; t 48: +4.39
+    # against -2.94; t 52: the p 0.05 box is out of the window.
+    assert published == [None, None, None, "A"] and selector.reacquisitions == 1
+
+
+def test_a_reacquired_track_must_be_eligible_as_any_target():
+    """With the paper's path factor (floor 0) a track that has not moved scores 0: never a target, never retaken."""
+    config = SelectionConfig(confidence_score="evidence", positive_evidence_only=True, recent_evidence_s=8.0,
+                             reacquire_recent_evidence=2.0)
+    selector = OnlineTargetSelector(config)
+    published = [selector.update(4.0 * k, [_wt("S", [300, 0], conf=0.95)]) for k in range(6)]
+    assert published == [None] * 6 and selector.reacquisitions == 0
 
 
 @pytest.mark.parametrize("value", [-1.0, math.nan, math.inf, "2"])

@@ -82,12 +82,12 @@ class SelectionConfig:
         however much evidence it gathered before (0: off). The screen tracker can move a track that followed the
         vessel of interest onto another boat; its long history would keep it the target while its boxes now say
         it is not the vessel. Online only: the offline pass scores whole trajectories.
-    reacquire_recent_evidence: with ``recent_evidence_s``, while there is no target a track whose confidences of
-        the last ``recent_evidence_s`` seconds sum to at least this many (clipped) log-odds becomes the target,
-        whatever its whole history scores and whatever share of the lost target's score it has (0: off). The
-        network's recent boxes are the evidence that the vessel of interest is back, on a new track or on one that
-        followed another boat before; a history that does not say the vessel of interest (non-positive) is
-        dropped, as at an identity change. Online only.
+    reacquire_recent_evidence: with ``recent_evidence_s``, where the other rules leave no target (no eligible
+        track, or none with ``reacquire_fraction`` of the lost target's score), a track whose confidences of the
+        last ``recent_evidence_s`` seconds sum to at least this many (clipped) log-odds becomes the target (0: off).
+        The network's recent boxes are the evidence that the vessel of interest is back, on a new track or on one
+        that followed another boat before; a history whose evidence is not positive is dropped, as at an identity
+        change. A track dropped for its recent boxes counts them still. Online only.
     appearance_joins: with the ``evidence`` score, an ended track's history is continued (online join) only by a
         track whose first box looks the same way (both likely the vessel of interest, or both not). Online only.
     evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
@@ -760,13 +760,11 @@ class OnlineTargetSelector:
                 return self.target
             if self._pending_target not in self._running:
                 self._pending_target = None
-        if (self.target is None or self.target not in self._running) and cfg.reacquire_recent_evidence > 0:
-            back = self._reacquired(stamp)
-            if back is not None:
-                return back
         if not scores:
             self._challenger = None
-            return self.target if self.target in self._running else None
+            if self.target in self._running:
+                return self.target
+            return self._reacquired(stamp) if cfg.reacquire_recent_evidence > 0 else None
         best = max(scores, key=lambda t: (scores[t], t == self.target))
         if self.target is None or self.target not in self._running:
             lost_score = self._lost_score
@@ -774,8 +772,9 @@ class OnlineTargetSelector:
                 lost_score *= 0.5 ** (max(stamp - self._lost_stamp, 0.0) / cfg.evidence_half_life_s)
             if stamp - self._lost_stamp <= cfg.reacquire_window_s and \
                     scores[best] < cfg.reacquire_fraction * lost_score:
-                self.target = None  # the vessel of interest was lost a moment ago: no stand-in for it
-                return None
+                self.target = None  # the vessel of interest was lost a moment ago: no stand-in for it ...
+                # ... unless a track's recent boxes say it is back
+                return self._reacquired(stamp) if cfg.reacquire_recent_evidence > 0 else None
             self.target = best
             self._challenger = None
             return self.target
@@ -800,21 +799,31 @@ class OnlineTargetSelector:
     def _reacquired(self, stamp: float) -> str | None:
         """The established track whose recent boxes say most strongly that the vessel of interest is back.
 
-        Only one whose recent evidence reaches ``reacquire_recent_evidence``; it becomes the target, and a
-        non-positive history before the window is dropped (None: no track says so).
+        Only one whose recent evidence reaches ``reacquire_recent_evidence``. The boxes a track had before it was
+        dropped for them (``_appearance_changed``) still count in its window, so the same track cannot take the
+        role back until its new boxes outweigh them. A history whose evidence is not positive is dropped before the
+        window (it followed another boat); the track must then be eligible as any target is. None: no track.
         """
         cfg = self.config
-        evidence = {tid: r.recent_evidence(cfg, stamp) for tid, r in self._running.items()
-                    if r.eligible and r.established and r.last_stamp == stamp}
-        evidence = {tid: e for tid, e in evidence.items() if e >= cfg.reacquire_recent_evidence}
-        if not evidence:
-            return None
-        best = max(evidence, key=lambda t: (evidence[t], t))
-        running = self._running[best]
-        if not running.score(cfg, stamp) > 0:
-            running.forget_before(stamp - cfg.recent_evidence_s)
-        self.target = best
-        self._challenger = None
-        self._pending_target = None
-        self.reacquisitions += 1
-        return best
+        evidence = {}
+        for tid, running in self._running.items():
+            if not (running.eligible and running.established and running.last_stamp == stamp):
+                continue
+            evidence[tid] = running.recent_evidence(cfg, stamp) + sum(
+                ended.recent_evidence(cfg, stamp) for ended in self._ended.values() if ended.excluded_heir == tid)
+        for tid in sorted(evidence, key=lambda t: (evidence[t], t), reverse=True):
+            if evidence[tid] < cfg.reacquire_recent_evidence:
+                break
+            running = self._running[tid]
+            confidences = np.fromiter(running.confidences, float)
+            if not float(np.sum(clipped_log_odds(confidences[np.isfinite(confidences)], cfg.evidence_clip))) > 0:
+                running.forget_before(stamp - cfg.recent_evidence_s)
+            if not (cfg.eligible_score(running.score(cfg, stamp)) and running.recent_evidence_ok(cfg, stamp)):
+                continue
+            self.target = tid
+            self._challenger = None
+            self._pending_target = None
+            self._last_target_ended = None
+            self.reacquisitions += 1
+            return tid
+        return None
