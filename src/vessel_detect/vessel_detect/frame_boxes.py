@@ -89,25 +89,38 @@ def dataset_frame_boxes(dataset, videos, detections: str | None = None, detector
 
 def _detect_records(records, detector_params, image_wh, save_csv) -> dict[tuple[int, int], tuple]:
     """(video, frame) -> (boxes (k, 4), scores (k,)) of the calibration-free detector."""
-    import cv2
-
     detector = calibration_free_detector(detector_params, image_wh)
-    out: dict[tuple[int, int], tuple] = {}
-    started = time.monotonic()
-    for index, record in enumerate(records, start=1):
-        image = cv2.imread(str(record.path), cv2.IMREAD_COLOR)
-        if image is None or not image.size:
-            print(f"\nwarning: cannot read frame {record.path}; skipped", file=sys.stderr)
-            out[(record.video, record.frame)] = (np.zeros((0, 4)), np.zeros(0))
-            continue
-        dets = detector.detect(image)
-        out[(record.video, record.frame)] = (dets.boxes_xyxy, dets.scores)
-        if index % 10 == 0 or index == len(records):
-            _progress(index, len(records), started)
-    print(file=sys.stderr)
+    out, unreadable = _detect_each(detector, records, lambda found: found.scores)
+    for path in unreadable:
+        print(f"warning: cannot read frame {path}; skipped", file=sys.stderr)
     if save_csv:
         _save_detections(save_csv, ((v, f, *found) for (v, f), found in out.items()))
     return out
+
+
+def _detect_each(detector, records, confidence) -> tuple[dict[tuple[int, int], tuple], list]:
+    """(video, frame) -> (boxes (k, 4), ``confidence(detections)`` (k,)) of ``detector`` on each record's image.
+
+    Also the paths of the frames that could not be read: they get no box. Progress goes to stderr.
+    """
+    import cv2
+
+    out: dict[tuple[int, int], tuple] = {}
+    unreadable: list = []
+    started = time.monotonic()
+    for index, record in enumerate(records, start=1):
+        path = Path(record.path) if record.path else None
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path is not None and path.is_file() else None
+        if image is None or not image.size:
+            unreadable.append(path)
+            out[(record.video, record.frame)] = (np.zeros((0, 4)), np.zeros(0))
+            continue
+        found = detector.detect(image)
+        out[(record.video, record.frame)] = (found.boxes_xyxy, confidence(found))
+        if index % 10 == 0 or index == len(records):
+            _progress(index, len(records), started)
+    print(file=sys.stderr)
+    return out, unreadable
 
 
 def video_frame_boxes(video_path, start_utc: float, track: GpsTrack, every: int = 25, max_gap_s: float = 3.0,
@@ -174,29 +187,12 @@ def graph_detector_boxes(records, camera, params_path: str | None = None, detect
         table = read_detections_csv(detections, "write one with `./vessel detect run --params P --calib C`")
         empty = (np.zeros((0, 4)), np.zeros(0))
         return {(r.video, r.frame): table.get((r.video, r.frame), empty) for r in records}
-    import cv2
-
     path = params_path or repo_file(GRAPH_PARAMS)
     if path is None:
         raise DataError(f"{GRAPH_PARAMS} not found: give the graph's parameter file")
     values, _ = load_params_file(path)
-    detector = build_detector(values, camera)
-    out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-    unreadable: list[Path] = []
-    started = time.monotonic()
-    for index, record in enumerate(records, start=1):
-        path = Path(record.path) if record.path else None
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path is not None and path.is_file() else None
-        if image is None or not image.size:
-            unreadable.append(path)
-            out[(record.video, record.frame)] = (np.zeros((0, 4)), np.zeros(0))
-            continue
-        found = detector.detect(image)
-        p = np.where(np.isfinite(found.p_target), found.p_target, found.scores)
-        out[(record.video, record.frame)] = (found.boxes_xyxy, p)
-        if index % 10 == 0 or index == len(records):
-            _progress(index, len(records), started)
-    print(file=sys.stderr)
+    out, unreadable = _detect_each(build_detector(values, camera), records,
+                                   lambda found: np.where(np.isfinite(found.p_target), found.p_target, found.scores))
     if unreadable:
         print(f"warning: {len(unreadable)} of {len(records)} frames could not be read (first: {unreadable[0]}); "
               "they count as frames without a box", file=sys.stderr)

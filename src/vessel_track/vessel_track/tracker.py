@@ -230,6 +230,21 @@ class TrackerConfig:
         return asdict(self)
 
 
+def node_values(path, node: str = "tracker") -> dict:
+    """A parameter YAML's values for ``node``: its ``/**`` block overridden by its own, as ROS merges them.
+
+    A file that cannot be read or parsed is a DataError naming it.
+    """
+    try:
+        blocks = read_params_yaml(path)
+    except CalibrationError as error:
+        raise DataError(str(error)) from None
+    values: dict = {}
+    for block in node_blocks(blocks, node):
+        values.update(block)
+    return values
+
+
 def load_tracker_config(path, node: str = "tracker") -> TrackerConfig:
     """The tracker settings of a parameter YAML's ``node`` (else ``/**``) block; defaults when ``path`` is None.
 
@@ -239,15 +254,8 @@ def load_tracker_config(path, node: str = "tracker") -> TrackerConfig:
     """
     if path is None:
         return TrackerConfig()
-
-    try:
-        blocks = read_params_yaml(path)
-    except CalibrationError as error:
-        raise DataError(str(error)) from None
     known = {f.name for f in fields(TrackerConfig)}
-    values: dict = {}
-    for block in node_blocks(blocks, node):
-        values.update({k: v for k, v in block.items() if k in known})
+    values = {k: v for k, v in node_values(path, node).items() if k in known}
     try:
         return TrackerConfig.from_dict(values)
     except (DataError, TypeError, ValueError) as error:

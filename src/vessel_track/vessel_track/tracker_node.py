@@ -21,8 +21,7 @@ from dataclasses import fields
 import numpy as np
 from rclpy.node import Node
 
-from vessel_calib.params import node_blocks, read_params_yaml
-from vessel_common.errors import CalibrationError, DataError, VesselError
+from vessel_common.errors import DataError, VesselError
 from vessel_common.node_support import (
     NodeHealth,
     NodeState,
@@ -44,6 +43,7 @@ from vessel_track.tracker import (
     TrackerConfig,
     TrackerCounters,
     TrackState,
+    node_values,
 )
 
 #: TrackerConfig field -> (ROS parameter description, range). Every field is a parameter of the node.
@@ -173,20 +173,19 @@ def load_detection_inputs(path) -> tuple[frozenset[str] | None, str]:
     """
     if path is None:
         return None, ""
-    try:
-        blocks = read_params_yaml(path)
-    except CalibrationError as error:
-        raise DataError(str(error)) from None
-    values: dict = {}
-    for block in node_blocks(blocks, "tracker"):
-        values.update({k: block[k] for k in ("classes", "confidence_class") if k in block})
+    values = node_values(path, "tracker")
     classes = values.get("classes", [EVERY_CLASS])
     confidence_class = values.get("confidence_class", "")
     if not (isinstance(classes, list) and all(isinstance(c, str) for c in classes)):
         raise DataError(f"{path}: tracker.classes must be a list of class ids, e.g. [boat] or ['*'], got {classes!r}")
     if not isinstance(confidence_class, str):
         raise DataError(f"{path}: tracker.confidence_class must be a class id string, got {confidence_class!r}")
-    return (None if not classes or EVERY_CLASS in classes else frozenset(classes)), confidence_class
+    return accepted_classes(classes), confidence_class
+
+
+def accepted_classes(classes) -> frozenset[str] | None:
+    """The ``classes`` parameter as the set of class ids to track; None for every class (``['*']`` or empty)."""
+    return None if not classes or EVERY_CLASS in classes else frozenset(classes)
 
 
 def track_to_msg(state: TrackState, header) -> VesselTrack:
@@ -240,7 +239,7 @@ class TrackerNode(Node):
         classes = declare_parameter(self, "classes", [EVERY_CLASS],
                                     "Class ids (hypothesis.class_id) to track, e.g. ['boat']; ['*']: every class "
                                     "the detector publishes.")
-        self.classes = None if not classes or EVERY_CLASS in classes else frozenset(classes)
+        self.classes = accepted_classes(classes)
         self.confidence_class = declare_parameter(
             self, "confidence_class", "", "Hypothesis class_id whose score is a track's confidence when a detection "
             "has it (the detector's target_class, e.g. vessel_of_interest); '' : the best accepted hypothesis.")
