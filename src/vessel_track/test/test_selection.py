@@ -426,6 +426,11 @@ def test_a_reacquired_track_must_be_eligible_as_any_target():
     selector = OnlineTargetSelector(config)
     published = [selector.update(4.0 * k, [_wt("S", [300, 0], conf=0.95)]) for k in range(6)]
     assert published == [None] * 6 and selector.reacquisitions == 0
+    # A track not taken keeps its whole history, even one that would have been dropped had it been taken.
+    selector = OnlineTargetSelector(config)
+    for k, c in enumerate((0.05, 0.05, 0.05, 0.95, 0.95, 0.95)):
+        assert selector.update(4.0 * k, [_wt("S", [300, 0], conf=c)]) is None
+    assert len(selector._running["S"].confidences) == 6
 
 
 @pytest.mark.parametrize("value", [-1.0, math.nan, math.inf, "2"])

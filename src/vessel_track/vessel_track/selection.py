@@ -132,24 +132,28 @@ class SelectionConfig:
         """
         if self.recent_evidence_s <= 0 or self.confidence_score != "evidence":
             return True
-        c = np.asarray(confidences, dtype=float).reshape(-1)
-        a = np.asarray(ages, dtype=float).reshape(-1)
-        if c.size == 0:
-            return True
-        recent = (a <= self.recent_evidence_s) | (np.arange(c.size) == c.size - 1)
-        c = c[recent & np.isfinite(c)]
-        if c.size == 0:
-            return True
-        return float(np.sum(clipped_log_odds(c, self.evidence_clip))) > 0
+        evidence = self._window_evidence(confidences, ages, with_newest=True)
+        return evidence is None or evidence > 0
 
     def recent_evidence(self, confidences, ages) -> float:
         """Sum of the clipped log-odds of the confidences of the last ``recent_evidence_s`` (0 when off)."""
         if self.recent_evidence_s <= 0 or self.confidence_score != "evidence":
             return 0.0
+        evidence = self._window_evidence(confidences, ages, with_newest=False)
+        return 0.0 if evidence is None else evidence
+
+    def _window_evidence(self, confidences, ages, with_newest: bool) -> float | None:
+        """Clipped log-odds summed over the finite confidences of the window (and the newest one, ``with_newest``).
+
+        None when there is none.
+        """
         c = np.asarray(confidences, dtype=float).reshape(-1)
         a = np.asarray(ages, dtype=float).reshape(-1)
-        keep = (a <= self.recent_evidence_s) & np.isfinite(c)
-        return float(np.sum(clipped_log_odds(c[keep], self.evidence_clip))) if keep.any() else 0.0
+        keep = a <= self.recent_evidence_s
+        if with_newest and c.size:
+            keep[-1] = True
+        c = c[keep & np.isfinite(c)]
+        return float(np.sum(clipped_log_odds(c, self.evidence_clip))) if c.size else None
 
     def eligible_score(self, score: float) -> bool:
         """Whether a trajectory of this score may be the vessel of interest (``positive_evidence_only``)."""
@@ -815,10 +819,12 @@ class OnlineTargetSelector:
             if evidence[tid] < cfg.reacquire_recent_evidence:
                 break
             running = self._running[tid]
+            kept = running.confidences, running.confidence_stamps
             confidences = np.fromiter(running.confidences, float)
             if not float(np.sum(clipped_log_odds(confidences[np.isfinite(confidences)], cfg.evidence_clip))) > 0:
                 running.forget_before(stamp - cfg.recent_evidence_s)
             if not (cfg.eligible_score(running.score(cfg, stamp)) and running.recent_evidence_ok(cfg, stamp)):
+                running.confidences, running.confidence_stamps = kept  # not taken: its history stays whole
                 continue
             self.target = tid
             self._challenger = None
