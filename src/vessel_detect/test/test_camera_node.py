@@ -170,6 +170,23 @@ def test_frames_in_flight_keep_a_detector_that_answers_one_image_late_busy(tmp_p
     assert probe.camera_counts()["count.ack_timeouts"] == str(timeouts)
 
 
+@pytest.mark.parametrize("restamp", [True, False])
+def test_a_loop_paces_on_the_detections_of_its_own_frames(tmp_path, replay, restamp):
+    """Without restamping, a loop repeats the stamps: the detections of the first pass must not release the second.
+
+    A detector that answers one image late (``ack_lag`` 1) makes every frame wait out ``ack_timeout_s`` in lock
+    step, in both passes.
+    """
+    stamps = synthetic.write_bag(tmp_path / "bag", frames=3, frame_step_s=4.0, with_fixes=False)
+    probe, status, output = replay(tmp_path / "bag", "rate:=0.0", "ack_timeout_s:=0.5", "publish_clock:=false",
+                                   "loop:=true", f"loop_restamp:={str(restamp).lower()}", "max_frames:=6", ack=True,
+                                   ack_lag=1)
+    assert status == 0, output
+    sent = [s for s, _ in probe.images]
+    assert len(sent) == 6 and (sent[3:] == stamps) != restamp
+    assert probe.camera_counts()["count.ack_timeouts"] == "6"
+
+
 def test_a_frame_whose_detections_never_come_is_counted(tmp_path, replay):
     """With two in flight, the detector may drop an image for the next one: the next one's detections release it."""
     stamps = synthetic.write_bag(tmp_path / "bag", frames=6, frame_step_s=4.0, with_fixes=False)

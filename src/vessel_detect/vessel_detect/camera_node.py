@@ -81,6 +81,7 @@ class _CameraPhases:
         self._ack = threading.Condition()
         self._acked_ns: int | None = None
         self._acked_recent: deque[int] = deque(maxlen=64)  # stamps whose detections arrived
+        self._newest_sent_ns: int | None = None  # acks of later stamps are stale (a loop that kept the stamps)
         self.source: ImageSource | None = None
         self._worker: threading.Thread | None = None
         self._publishers: list = []
@@ -188,7 +189,7 @@ class _CameraPhases:
               "ack_timeout_s).", float_range=(0.0, 1000.0))
         param("loop", False, "Replay the source again and again (recorded sources).")
         param("loop_restamp", True, "On loops, shift stamps by the source's length so time keeps increasing; false "
-              "repeats the original stamps (time jumps back).")
+              "repeats the original stamps (time jumps back: the pacing, /clock and the wait for detections start over).")
         param("start_offset_s", 0.0, "Start this many seconds after the source's first frame.",
               float_range=(0.0, 1.0e6))
         param("publish_compressed", True, "Publish sensor_msgs/CompressedImage (JPEG as stored; others encoded).")
@@ -269,7 +270,10 @@ class _CameraPhases:
 
     def _on_ack(self, message) -> None:
         with self._ack:
-            self._acked_ns = stamp_ns(message.header.stamp)
+            stamp = stamp_ns(message.header.stamp)
+            if self._newest_sent_ns is None or stamp > self._newest_sent_ns:
+                return  # not a frame of this pass: a late answer to the pass before a loop that kept the stamps
+            self._acked_ns = stamp
             self._acked_recent.append(self._acked_ns)
             self._ack.notify_all()
 
@@ -346,9 +350,17 @@ class _CameraPhases:
         last_log = time.monotonic()
         clock_period = 1.0 / self.params["clock_rate_hz"]
         in_flight: deque[int] = deque()  # stamps of published frames whose detections have not arrived (rate 0)
+        pass_index = 0
         for item in self.source:
             if self._stop.is_set():
                 return
+            if item.loop != pass_index:
+                pass_index = item.loop
+                if not self.params["loop_restamp"]:
+                    # the stamps start over, so the pacing, /clock and the acks do too
+                    self._drain(in_flight)
+                    self._forget_acks()
+                    wall0, last_clock_ns = None, None
             if wall0 is None:
                 wall0, stamp0 = time.monotonic(), item.stamp_ns
                 if self.clock_pub is not None:
@@ -396,6 +408,11 @@ class _CameraPhases:
         its newest image), so the second frame waits for the first one's detections (or ``ack_timeout_s``).
         """
         return 1 if self.stats.sent <= 1 else self.params["frames_in_flight"]
+
+    def _forget_acks(self) -> None:
+        with self._ack:
+            self._acked_ns = self._newest_sent_ns = None
+            self._acked_recent.clear()
 
     def _drain(self, in_flight: deque) -> None:
         """At the end of a paced replay: wait for the detections of the frames still in flight."""
@@ -459,6 +476,8 @@ class _CameraPhases:
 
     def _publish_frame(self, frame: Frame) -> bool:
         stamp = time_msg(frame.stamp_ns)
+        with self._ack:
+            self._newest_sent_ns = frame.stamp_ns
         frame_id = frame.frame_id or self.params["frame_id"]
         try:
             if self.compressed_pub is not None:
