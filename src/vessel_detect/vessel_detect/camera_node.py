@@ -189,7 +189,8 @@ class _CameraPhases:
               "ack_timeout_s).", float_range=(0.0, 1000.0))
         param("loop", False, "Replay the source again and again (recorded sources).")
         param("loop_restamp", True, "On loops, shift stamps by the source's length so time keeps increasing; false "
-              "repeats the original stamps (time jumps back: the pacing, /clock and the wait for detections start over).")
+              "repeats the original stamps (time jumps back: the pacing, /clock and the wait for detections start "
+              "over).")
         param("start_offset_s", 0.0, "Start this many seconds after the source's first frame.",
               float_range=(0.0, 1.0e6))
         param("publish_compressed", True, "Publish sensor_msgs/CompressedImage (JPEG as stored; others encoded).")
