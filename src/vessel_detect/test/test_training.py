@@ -202,6 +202,20 @@ def test_simota_gives_a_box_the_anchors_near_it():
     assert torch.all(ious[fg] > 0)
 
 
+def test_boxes_below_the_class_height_teach_objectness_and_box_but_no_class():
+    from vessel_detect.training.loss import yolox_loss
+
+    generator = torch.Generator().manual_seed(0)
+    levels = [tuple(torch.randn(1, c, 64 // s, 128 // s, generator=generator) for c in (4, 1, 2)) for s in (8, 16, 32)]
+    small = (torch.tensor([[40.0, 20.0, 60.0, 32.0]]), torch.tensor([0]), torch.zeros((0, 4)))  # 12 px high
+    every = yolox_loss(levels, [small])
+    above = yolox_loss(levels, [small], class_min_height_px=12.0)  # as high as the limit: still teaches its class
+    below = yolox_loss(levels, [small], class_min_height_px=13.0)
+    assert every.classes > 0 and above.classes == pytest.approx(every.classes) and below.classes == 0.0
+    assert below.box == pytest.approx(every.box) and below.objectness == pytest.approx(every.objectness)
+    assert below.foreground == every.foreground > 0
+
+
 def _synthetic_set(count: int = 4):
     rng = np.random.default_rng(0)
     images, labels = {}, []

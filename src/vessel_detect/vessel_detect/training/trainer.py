@@ -119,7 +119,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
             for group in optimiser.param_groups:
                 group["lr"] = _lr_at(step, steps_per_epoch, settings)
             levels = model(torch.from_numpy(np.stack([s.image for s in samples])))
-            parts = yolox_loss(levels, _targets(samples))
+            parts = yolox_loss(levels, _targets(samples), class_min_height_px=settings.class_min_height_px)
             if not torch.isfinite(parts.total):
                 raise ModelError(f"training diverged at epoch {epoch} (loss {float(parts.total)}): lower --lr")
             optimiser.zero_grad(set_to_none=True)
