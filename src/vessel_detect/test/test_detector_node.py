@@ -192,6 +192,26 @@ def test_detector_node_detects_on_a_real_frame_counts_bad_frames_and_keeps_runni
     assert log.count("does not decode") == 1  # logged once per kind
 
 
+def test_with_two_images_waiting_two_sent_back_to_back_are_both_detected(start_node, probe, data_dir, model_path):
+    """``images_waiting`` 2 (a replay with the camera's ``frames_in_flight`` 2): neither image replaces the other."""
+    jpeg = (data_dir / "frames" / FRAME[0] / FRAME[1]).read_bytes()
+    node = start_node("vessel_detect", "detector", "--ros-args", "--params-file", str(PARAMS_FILE),
+                      "--params-file", str(CALIBRATION), "-p", f"model_path:={model_path}", "-p", "images_waiting:=2")
+    assert probe.wait(lambda: probe.compressed.get_subscription_count() > 0
+                      and probe.node.count_publishers("/vessel/detections") > 0, 90.0), node.output()
+    for sec in range(1_601_495_000, 1_601_495_030):  # until the first is answered (matching takes a while)
+        probe.compressed.publish(_compressed(jpeg, sec))
+        if probe.wait(lambda: probe.detections, 5.0):
+            break
+    assert probe.detections, node.output()
+    for round_start in (1_601_495_100, 1_601_495_200, 1_601_495_300):
+        probe.compressed.publish(_compressed(jpeg, round_start))
+        probe.compressed.publish(_compressed(jpeg, round_start + 1))
+        assert probe.wait(lambda s=round_start: probe.output_for(s) is not None
+                          and probe.output_for(s + 1) is not None, 60.0), (probe.counts(), node.output())
+    assert node.stop() == 0
+
+
 def test_detector_node_refuses_to_start_without_its_model(ros_env, tmp_path):
     missing = tmp_path / "missing_model.onnx"
     result = subprocess.run([str(DETECTOR_EXE), "--ros-args", "--params-file", str(CALIBRATION), "-p",

@@ -231,8 +231,9 @@ class _CameraPhases:
               float_range=(0.01, 600.0))
         param("frames_in_flight", 1, "At rate 0: frames published whose detections have not arrived yet. 1 = lock "
               "step; 2 keeps the next frame waiting at the detector while it works on one, so neither the "
-              "transport nor this node's turn-around idles it (the detector keeps one image waiting: more would be "
-              "dropped). The first frame is sent in lock step.", int_range=(1, 2))
+              "transport nor this node's turn-around idles it (give the detector images_waiting 2, else one of two "
+              "images arriving before its worker takes the first is dropped). The first frame is sent in lock "
+              "step.", int_range=(1, 2))
         param("wait_for_subscribers", -1, "Before the first frame, wait until this many subscribers are matched on "
               "the image topic, so no frame is lost while the graph starts. 0 = start at once; -1 = automatic: at "
               "rate 0 wait for one image subscriber and a publisher on ack_topic (the detector), else start at "

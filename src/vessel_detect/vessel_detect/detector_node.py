@@ -129,7 +129,7 @@ class _DetectorPhases:
                     "frames_per_s", "windows_per_frame", "detections_last"):
             self.health.set_value(key, float("nan"))
         self._lock = threading.Condition()
-        self._latest: tuple[str, object, float] | None = None
+        self._waiting: deque[tuple[str, object, float]] = deque()
         self._stop = False
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._end_to_end: deque[float] = deque(maxlen=LATENCY_WINDOW)
@@ -162,7 +162,7 @@ class _DetectorPhases:
                 Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
         with self._lock:
             self._stop = False
-            self._latest = None
+            self._waiting.clear()
         self._worker = threading.Thread(target=self._work, name="detector-worker", daemon=True)
         self._worker.start()
         topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
@@ -212,23 +212,23 @@ class _DetectorPhases:
 
     # ------------------------------------------------------------------------------------------------ input
     def _on_image(self, kind: str, message) -> None:
-        """Keep only the newest image; one the worker did not take yet is dropped and counted."""
+        """Keep the newest ``images_waiting`` images; an older one the worker did not take yet is dropped, counted."""
         received = time.monotonic()
         with self._lock:
             self.health.count("frames_received")
-            if self._latest is not None:
+            while len(self._waiting) >= self.values["images_waiting"]:
+                self._waiting.popleft()
                 self.health.count("dropped_frames")
-            self._latest = (kind, message, received)
+            self._waiting.append((kind, message, received))
             self._lock.notify()
 
     def _take(self) -> tuple[str, object, float] | None:
         with self._lock:
-            while self._latest is None and not self._stop:
+            while not self._waiting and not self._stop:
                 self._lock.wait(0.5)
             if self._stop:
                 return None
-            item, self._latest = self._latest, None
-            return item
+            return self._waiting.popleft()
 
     # ------------------------------------------------------------------------------------------------ worker
     def _work(self) -> None:

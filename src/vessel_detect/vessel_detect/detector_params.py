@@ -117,6 +117,10 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("subscribe_raw", False, "Subscribe to raw_topic.", read_only=True),
     ParamSpec("image_qos", "sensor_data", "QoS of the image subscriptions: sensor_data (best effort) or "
               "reliable.", read_only=True),
+    ParamSpec("images_waiting", 1, "Images kept waiting while the network works; beyond this the oldest is "
+              "dropped (counted). 1 = only the newest (live cameras); 2 for a replay whose camera has "
+              "frames_in_flight 2, so that two images arriving back to back are both detected.",
+              int_range=(1, 2), read_only=True),
     ParamSpec("detections_topic", "/vessel/detections", "Detection2DArray output topic (reliable).",
               read_only=True),
     ParamSpec("detections_qos_depth", 10, "History depth of the detections publisher.", int_range=(1, 1000),

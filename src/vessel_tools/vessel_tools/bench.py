@@ -397,7 +397,9 @@ class GraphSession:
         """Start the nodes but the camera, consumers first, and wait until everything is connected."""
         self.watcher = GraphWatcher(self.domain_id, log_frames=True)
         for name in ("gps_publisher", "fuser", "tracker", "detector"):
-            started = self.runner.start(self.nodes[name])
+            # the detector keeps as many images waiting as the camera sends ahead, so none is replaced
+            overrides = {"images_waiting": self.frames_in_flight} if name == "detector" else None
+            started = self.runner.start(self.nodes[name], overrides)
             self.monitor.add(name, node_pid(started.process.pid, self.nodes[name].executable))
         log(f"started {', '.join(self.monitor.pids)}; waiting for the graph to connect (ROS_DOMAIN_ID "
             f"{self.domain_id}, logs in {self.log_dir})")
