@@ -232,8 +232,7 @@ class _CameraPhases:
         param("frames_in_flight", 1, "At rate 0: frames published whose detections have not arrived yet. 1 = lock "
               "step; 2 keeps the next frame waiting at the detector while it works on one, so neither the "
               "transport nor this node's turn-around idles it (give the detector images_waiting 2, else one of two "
-              "images arriving before its worker takes the first is dropped). The first frame is sent in lock "
-              "step.", int_range=(1, 2))
+              "images arriving before its worker takes the first is dropped).", int_range=(1, 2))
         param("wait_for_subscribers", -1, "Before the first frame, wait until this many subscribers are matched on "
               "the image topic, so no frame is lost while the graph starts. 0 = start at once; -1 = automatic: at "
               "rate 0 wait for one image subscriber and a publisher on ack_topic (the detector), else start at "
@@ -392,7 +391,7 @@ class _CameraPhases:
                     continue
             if self._publish_frame(item) and self.rate == 0 and not self.live:
                 in_flight.append(item.stamp_ns)
-                while len(in_flight) >= self._in_flight_limit():
+                while len(in_flight) >= self.params["frames_in_flight"]:
                     self._wait_for_ack(in_flight.popleft())
             if 0 < self.params["max_frames"] <= self.stats.sent:
                 self.get_logger().info(f"max_frames={self.params['max_frames']} reached")
@@ -402,14 +401,6 @@ class _CameraPhases:
                 last_log = time.monotonic()
                 self.get_logger().info(self._progress_text())
         self._drain(in_flight)
-
-    def _in_flight_limit(self) -> int:
-        """Lock step for the first frame, then ``frames_in_flight``.
-
-        Two images sent back to back before the detector has taken the first would leave it only the second (it keeps
-        its newest image), so the second frame waits for the first one's detections (or ``ack_timeout_s``).
-        """
-        return 1 if self.stats.sent <= 1 else self.params["frames_in_flight"]
 
     def _forget_acks(self) -> None:
         with self._ack:
