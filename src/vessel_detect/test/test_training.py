@@ -127,6 +127,23 @@ def test_close_ups_show_the_vessel_larger_than_any_ordinary_crop_wherever_it_is(
     assert widest <= 1.6 * 40 + 1e-6
 
 
+def test_close_ups_of_other_boats_with_zoom_other():
+    """A large upscaled boat must not by itself mean the vessel of interest: some close-ups are of other boats."""
+    image, labels = _frame_with_boat(None)  # the vessel at x 300-340, another boat at x 50-70
+    settings = AugmentSettings(crop_wh=(256, 128), zoom_target=1.0, zoom_range=(2.0, 3.0), zoom_other=0.5)
+    centred_on_other = 0
+    for seed in range(40):
+        sample = random_sample(image, labels, 150.0, np.random.default_rng(seed), settings)
+        other = sample.boxes[sample.classes == 1]
+        if len(other) and not np.any(sample.classes == 0):
+            centred_on_other += 1
+            assert 2.0 * 20 - 1e-6 <= other[0, 2] - other[0, 0] <= 3.0 * 20 + 1e-6
+    assert 10 <= centred_on_other <= 30
+    never = AugmentSettings(crop_wh=(256, 128), zoom_target=1.0, zoom_range=(2.0, 3.0))
+    for seed in range(20):
+        assert np.any(random_sample(image, labels, 150.0, np.random.default_rng(seed), never).classes == 0)
+
+
 # --------------------------------------------------------------------------------- PyTorch from here on
 torch = pytest.importorskip("torch", reason="the training extra is not installed: ./vessel setup --train")
 pytest.importorskip("onnx2torch", reason="the training extra is not installed: ./vessel setup --train")

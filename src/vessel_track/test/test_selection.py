@@ -1,5 +1,6 @@
 """Vessel-of-interest selection: the paper's score, joining, online hysteresis (ROS-free)."""
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -444,3 +445,43 @@ def test_reacquire_recent_evidence_needs_its_window():
         _evidence_config(reacquire_recent_evidence=2.0)
     with pytest.raises(DataError, match="confidence_score: evidence"):
         SelectionConfig(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)
+
+
+def _far_vessel_judged_another_boat(config):
+    """A follows the vessel; far out, the detector calls it another boat while B, a nearer boat, looks like it.
+
+    Video 11 of training with a model that never saw it: the nearer boat was taken as the vessel for ten frames.
+    Frames every 4 s: A at p 0.8 (k 0-9), p 0.02 (k 10-13), then p 0.9 again (k 14-17); B at p 0.8 from k 8.
+    """
+    selector = OnlineTargetSelector(config)
+    published = []
+    for k in range(18):
+        conf_a = 0.8 if k < 10 else 0.02 if k < 14 else 0.9
+        tracks = [_wt("A", [100 + 8.0 * k, 50], conf=conf_a, velocity=(2.0, 0))]
+        if k >= 8:
+            tracks.append(_wt("B", [60, -40 + 2.0 * k], conf=0.8, velocity=(0, 0.5)))
+        published.append(selector.update(4.0 * k, tracks))
+    return selector, published
+
+
+def test_while_the_dropped_track_runs_no_other_boat_takes_the_role():
+    config = _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)
+    _, without = _far_vessel_judged_another_boat(config)
+    assert without[:10] == ["A"] * 10 and without[10:] == ["B"] * 8
+    selector, published = _far_vessel_judged_another_boat(replace(config, reacquire_waits_for_dropped_track=True))
+    # t 40: A's 8 s window sums to 2 x 1.39 - 3.89 < 0, it is dropped; B's boxes would reacquire the role, but A
+    # still runs: NO_FIX until A's own boxes of the window say the vessel again (t 64: 3 x 2.20).
+    assert published[:10] == ["A"] * 10 and published[10:16] == [None] * 6 and published[16:] == ["A", "A"]
+    assert selector.reacquisitions == 1
+    # Once the vessel's track has ended, the rule no longer holds: B's boxes bring it the role.
+    assert selector.update(72.0, [_wt("A", [236, 50], status=3), _wt("B", [60, -4], conf=0.8)]) == "B"
+
+
+def test_a_track_that_continues_the_dropped_targets_history_may_take_the_role():
+    """Video 12 of training: the dropped track lived on beside a new track that continued the vessel's history."""
+    config = _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0,
+                              reacquire_waits_for_dropped_track=True)
+    selector, published = _followed_then_swapped(config)
+    assert published[-1] is None and selector._dropped_track == "A"
+    target = selector.update(56.0, [_wt("A", [183, 60], conf=0.05), _wt("V", [228, 50], conf=0.8, velocity=(2.0, 0))])
+    assert target == "V" and selector.continued == {"V": "A~1"}

@@ -97,6 +97,9 @@ FUSER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "selection.reacquire_recent_evidence": ("With recent_evidence_s, while there is no target a track whose "
                                             "confidences of that window sum to at least this many log-odds becomes "
                                             "the target, whatever its history (0: off).", (0.0, 1e9)),
+    "selection.reacquire_waits_for_dropped_track": ("With recent_evidence_s, while the track dropped from the role "
+                                                    "for its recent boxes still runs, only a track carrying the lost "
+                                                    "target's history may take the role (NO_FIX meanwhile).", None),
     "selection.appearance_joins": ("With the evidence score, an ended track's history is continued only by a "
                                    "track whose first box looks the same way (vessel of interest or not).", None),
     "selection.evidence_half_life_s": ("With the evidence score, each confidence's log-odds counts "

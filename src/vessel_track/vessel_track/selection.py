@@ -88,6 +88,13 @@ class SelectionConfig:
         The network's recent boxes are the evidence that the vessel of interest is back, on a new track or on one
         that followed another boat before; a history whose evidence is not positive is dropped, as at an identity
         change. A track dropped for its recent boxes counts them still. Online only.
+    reacquire_waits_for_dropped_track: with ``recent_evidence_s``, while the track that was dropped from the role
+        for its recent boxes still runs, only a track that carries the lost target's history may take the role:
+        that track itself (by ``reacquire_recent_evidence`` of its own boxes) or a track that continued the
+        history by the online join. No other track takes over by any rule meanwhile: NO_FIX. A detector that has
+        not seen the scene may call the far vessel of interest another boat, and a nearer boat the vessel; the
+        track that followed the vessel all along is then still the better guess, and NO_FIX is safer than another
+        boat published as the vessel. Online only.
     appearance_joins: with the ``evidence`` score, an ended track's history is continued (online join) only by a
         track whose first box looks the same way (both likely the vessel of interest, or both not). Online only.
     evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
@@ -122,6 +129,7 @@ class SelectionConfig:
     positive_evidence_only: bool = False
     recent_evidence_s: float = 0.0
     reacquire_recent_evidence: float = 0.0
+    reacquire_waits_for_dropped_track: bool = False
     evidence_half_life_s: float = 0.0
     appearance_joins: bool = False
 
@@ -531,6 +539,8 @@ class OnlineTargetSelector:
         self._lost_score = 0.0
         self._lost_stamp = math.nan
         self._pending_target: str | None = None
+        self._dropped_track: str | None = None
+        self._present: set[str] = set()  # this frame's running tracks (LOST ones not)
         self.switches = 0
         self.joins = 0
         self.identity_changes = 0
@@ -551,6 +561,8 @@ class OnlineTargetSelector:
         self._lost_score = 0.0
         self._lost_stamp = math.nan
         self._pending_target = None
+        self._dropped_track = None
+        self._present = set()
         self._now = math.nan
         self.continued = {}
 
@@ -659,8 +671,12 @@ class OnlineTargetSelector:
                 self._target_lost(tid, self._ended[tid], stamp)
         for tid in [t for t, r in self._ended.items() if not (stamp - r.last_stamp <= cfg.join_max_gap_s)]:
             del self._ended[tid]
+        self._present = present
         self._handover(stamp, measured_now)
-        return self._choose(stamp)
+        target = self._choose(stamp)
+        if target is not None:
+            self._dropped_track = None  # the role is held again: an older drop no longer blocks anyone
+        return target
 
     def _appearance_changed(self, track_id: str, stamp: float) -> None:
         """The target's recent boxes say another boat (``recent_evidence_s``).
@@ -671,6 +687,7 @@ class OnlineTargetSelector:
         self.identity_changed(track_id, stamp)
         if running is not None:
             running.excluded_heir = track_id
+            self._dropped_track = track_id
 
     def identity_changed(self, track_id: str, stamp: float) -> None:
         """The track's world motion stopped fitting its history (its filter restarted after repeated outliers).
@@ -681,6 +698,8 @@ class OnlineTargetSelector:
         target is lost: no stand-in takes over unless the join brings the history back.
         """
         running = self._running.pop(track_id, None)
+        if track_id == self._dropped_track:
+            self._dropped_track = None  # its motion broke: it no longer holds the role's place
         if running is None:
             return
         self.identity_changes += 1
@@ -754,6 +773,8 @@ class OnlineTargetSelector:
                   and self._running[tid].recent_evidence_ok(cfg, stamp)}
         if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg, stamp)):
             self.target = None  # its evidence turned: another boat, not the vessel of interest
+        if self.target is None and self._waiting_for_dropped_track():
+            scores = {tid: s for tid, s in scores.items() if self._carries_lost_target(tid)}
         if self._pending_target is not None:
             if self._pending_target in scores:
                 if self.target != self._pending_target:
@@ -800,6 +821,17 @@ class OnlineTargetSelector:
             self.switches += 1
         return self.target
 
+    def _waiting_for_dropped_track(self) -> bool:
+        """``reacquire_waits_for_dropped_track`` holds: the track dropped for its recent boxes still runs."""
+        return self.config.reacquire_waits_for_dropped_track and self._dropped_track in self._present
+
+    def _carries_lost_target(self, track_id: str) -> bool:
+        """The track dropped from the role, or one that continued the lost target's history (online join)."""
+        running = self._running.get(track_id)
+        return track_id == self._dropped_track or (
+            running is not None and self._last_target_ended is not None
+            and running.inherited_from == self._last_target_ended)
+
     def _reacquired(self, stamp: float) -> str | None:
         """The established track whose recent boxes say most strongly that the vessel of interest is back.
 
@@ -810,8 +842,11 @@ class OnlineTargetSelector:
         """
         cfg = self.config
         evidence = {}
+        waiting = self._waiting_for_dropped_track()
         for tid, running in self._running.items():
             if not (running.eligible and running.established and running.last_stamp == stamp):
+                continue
+            if waiting and not self._carries_lost_target(tid):
                 continue
             evidence[tid] = running.recent_evidence(cfg, stamp) + sum(
                 ended.recent_evidence(cfg, stamp) for ended in self._ended.values() if ended.excluded_heir == tid)
@@ -830,6 +865,7 @@ class OnlineTargetSelector:
             self._challenger = None
             self._pending_target = None
             self._last_target_ended = None
+            self._dropped_track = None
             self.reacquisitions += 1
             return tid
         return None

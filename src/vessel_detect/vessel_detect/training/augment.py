@@ -6,8 +6,9 @@ input. Its top follows the horizon with a random shift, its scale is drawn log-u
 probability ``zoom_target`` the crop is instead a close-up of the vessel of interest at a scale drawn from
 ``zoom_range``, centred on it wherever it is in the band: the training passes keep the vessel far enough to be at
 most about 100 px wide, while the band reaches the image bottom, where a vessel passing close to the camera is
-several times larger. Boxes that the crop cuts to less than ``min_visible`` of their area become ignore regions,
-not negatives.
+several times larger. With probability ``zoom_other`` a close-up is centred on another boat of the frame instead,
+so that a large, upscaled boat is not by itself a sign of the vessel of interest. Boxes that the crop cuts to less
+than ``min_visible`` of their area become ignore regions, not negatives.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class AugmentSettings:
     min_visible: float = 0.45
     zoom_target: float = 0.2
     zoom_range: tuple[float, float] = (1.6, 4.0)
+    zoom_other: float = 0.0
 
 
 def band_top_px(camera, margin_px: float) -> float:
@@ -99,7 +101,11 @@ def random_sample(bgr: np.ndarray, labels, band_top: float, rng: np.random.Gener
         lo, hi = settings.zoom_range
         scale = math.exp(rng.uniform(math.log(lo), math.log(hi)))
         src_w, src_h = out_w / scale, out_h / scale
-        cx, cy = 0.5 * (targets[0, 0] + targets[0, 2]), 0.5 * (targets[0, 1] + targets[0, 3])
+        centre = targets[0]
+        others = labels.boxes[labels.classes != 0]
+        if len(others) and settings.zoom_other > 0 and rng.random() < settings.zoom_other:
+            centre = others[rng.integers(len(others))]
+        cx, cy = 0.5 * (centre[0] + centre[2]), 0.5 * (centre[1] + centre[3])
         x0 = cx - rng.uniform(0.25, 0.75) * src_w
         y0 = cy - rng.uniform(0.3, 0.7) * src_h
         return _finish(bgr, labels, x0, y0, scale, rng, settings)

@@ -49,7 +49,10 @@ def model_card(model_path: Path, summary: dict) -> str:
         f"{settings.get('learning_rate')}, seed {settings.get('seed')}; crops of the band "
         f"{settings.get('augment', {}).get('crop_wh')} at scales {settings.get('augment', {}).get('scale_range')}, "
         f"close-ups of the vessel at scales {settings.get('augment', {}).get('zoom_range')} in "
-        f"{settings.get('augment', {}).get('zoom_target', 0.0):.0%} of the crops, flips, HSV jitter, horizon shifts;"
+        f"{settings.get('augment', {}).get('zoom_target', 0.0):.0%} of the crops"
+        + (f" ({settings['augment']['zoom_other']:.0%} of them centred on another boat instead)"
+           if settings.get("augment", {}).get("zoom_other") else "")
+        + ", flips, HSV jitter, horizon shifts;"
         + (f" boxes under {settings['class_min_height_px']:g} network px teach no class;"
            if settings.get("class_min_height_px") else ""),
         f"- {summary.get('seconds', 0) / 60:.1f} min on the CPU; final loss {last.get('loss', float('nan')):.3f}; "

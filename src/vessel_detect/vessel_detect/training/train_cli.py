@@ -53,6 +53,9 @@ def add_parser(sub) -> None:
     train.add_argument("--class-min-height", type=float, default=defaults.class_min_height_px,
                        help="boxes lower than this many network pixels teach objectness but not their class (a boat "
                             f"too small to tell apart; default {defaults.class_min_height_px:g}: every box)")
+    train.add_argument("--zoom-other", type=float, default=defaults.augment.zoom_other,
+                       help="share of the close-up crops centred on another boat of the frame instead of the vessel "
+                            f"of interest (default {defaults.augment.zoom_other:g}: all on the vessel)")
     train.add_argument("--input-size", default=f"{defaults.input_hw[1]}x{defaults.input_hw[0]}",
                        help="exported network input WIDTHxHEIGHT, multiples of 32 (default 1280x352: the band)")
     train.add_argument("--crop-size", default=f"{defaults.augment.crop_wh[0]}x{defaults.augment.crop_wh[1]}",
@@ -123,9 +126,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     settings = TrainSettings(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
                              class_min_height_px=args.class_min_height,
-                             augment=AugmentSettings(crop_wh=crop))
+                             augment=AugmentSettings(crop_wh=crop, zoom_other=args.zoom_other))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
+    if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
+        raise DataError(f"--zoom-other must be a share between 0 and 1, got {args.zoom_other}")
     if not (math.isfinite(settings.class_min_height_px) and settings.class_min_height_px >= 0):
         raise DataError(f"--class-min-height must be a number of pixels >= 0, got {args.class_min_height}")
     dataset = open_dataset(args.data)
