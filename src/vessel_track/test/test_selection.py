@@ -485,3 +485,39 @@ def test_a_track_that_continues_the_dropped_targets_history_may_take_the_role():
     assert published[-1] is None and selector._dropped_track == "A"
     target = selector.update(56.0, [_wt("A", [183, 60], conf=0.05), _wt("V", [228, 50], conf=0.8, velocity=(2.0, 0))])
     assert target == "V" and selector.continued == {"V": "A~1"}
+
+
+def test_the_lost_history_handed_down_twice_still_may_take_the_role():
+    """V continues the dropped target's history without winning the role, V ends, W continues V: W carries it."""
+    config = _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0,
+                              reacquire_waits_for_dropped_track=True)
+    selector, _ = _followed_then_swapped(config)
+    selector.update(52.0, [_wt("A", [182, 60], conf=0.05), _wt("V", [228, 50], conf=0.3, velocity=(2.0, 0))])
+    assert selector.continued == {"V": "A~1"} and selector.target is None
+    selector.update(56.0, [_wt("A", [183, 60], conf=0.05), _wt("V", [236, 50], status=3)])
+    published = [selector.update(4.0 * k, [_wt("A", [184, 60], conf=0.05),
+                                           _wt("W", [236 + 8.0 * (k - 14), 50], conf=0.9, velocity=(2.0, 0))])
+                 for k in range(15, 19)]
+    assert selector.joins >= 2 and published[-1] == "W"
+
+
+def test_the_wait_holds_through_an_identity_change_the_join_undoes():
+    """A far track's filter may restart (noisy range) and the join give it its history back: it is still A."""
+    config = _evidence_config(recent_evidence_s=8.0, reacquire_recent_evidence=2.0,
+                              reacquire_waits_for_dropped_track=True)
+    selector = OnlineTargetSelector(config)
+    published = []
+    for k in range(18):
+        conf_a = 0.8 if k < 10 else 0.02 if k < 14 else 0.9
+        if k == 12:
+            selector.identity_changed("A", 4.0 * k)
+        tracks = [_wt("A", [100 + 8.0 * k, 50], conf=conf_a, velocity=(2.0, 0))]
+        if k >= 8:
+            tracks.append(_wt("B", [60, -40 + 2.0 * k], conf=0.8, velocity=(0, 0.5)))
+        published.append(selector.update(4.0 * k, tracks))
+    assert "B" not in published and published[10:14] == [None] * 4
+
+
+def test_reacquire_waits_for_dropped_track_needs_the_recent_evidence_rule():
+    with pytest.raises(DataError, match="reacquire_waits_for_dropped_track"):
+        _evidence_config(reacquire_waits_for_dropped_track=True)

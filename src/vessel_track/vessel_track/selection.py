@@ -91,10 +91,11 @@ class SelectionConfig:
     reacquire_waits_for_dropped_track: with ``recent_evidence_s``, while the track that was dropped from the role
         for its recent boxes still runs, only a track that carries the lost target's history may take the role:
         that track itself (by ``reacquire_recent_evidence`` of its own boxes) or a track that continued the
-        history by the online join. No other track takes over by any rule meanwhile: NO_FIX. A detector that has
-        not seen the scene may call the far vessel of interest another boat, and a nearer boat the vessel; the
-        track that followed the vessel all along is then still the better guess, and NO_FIX is safer than another
-        boat published as the vessel. Online only.
+        history by the online joins. No other track takes over by any rule meanwhile: NO_FIX. The wait ends when
+        that track ends, when its motion breaks and the join does not give it its history back, or when any track
+        holds the role again. A detector that has not seen the scene may call the far vessel of interest another
+        boat, and a nearer boat the vessel; the track that followed the vessel all along is then still the better
+        guess, and NO_FIX is safer than another boat published as the vessel. Online only.
     appearance_joins: with the ``evidence`` score, an ended track's history is continued (online join) only by a
         track whose first box looks the same way (both likely the vessel of interest, or both not). Online only.
     evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
@@ -199,6 +200,11 @@ class SelectionConfig:
             raise DataError("selection: reacquire_recent_evidence needs confidence_score: evidence and "
                             "recent_evidence_s > 0 (it sums the confidences of that window); set them, or set "
                             "reacquire_recent_evidence to 0")
+        if self.reacquire_waits_for_dropped_track and not (self.recent_evidence_s > 0
+                                                           and self.confidence_score == "evidence"):
+            raise DataError("selection: reacquire_waits_for_dropped_track needs confidence_score: evidence and "
+                            "recent_evidence_s > 0 (a target is dropped for the boxes of that window); set them, or "
+                            "set reacquire_waits_for_dropped_track to false")
         for name in ("recent_evidence_s", "evidence_half_life_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
@@ -540,6 +546,8 @@ class OnlineTargetSelector:
         self._lost_stamp = math.nan
         self._pending_target: str | None = None
         self._dropped_track: str | None = None
+        self._dropped_history: str | None = None  # the dropped track's history after an identity change this frame
+        self._lost_running: _Running | None = None  # the lost target's history, whoever continues it
         self._present: set[str] = set()  # this frame's running tracks (LOST ones not)
         self.switches = 0
         self.joins = 0
@@ -562,6 +570,8 @@ class OnlineTargetSelector:
         self._lost_stamp = math.nan
         self._pending_target = None
         self._dropped_track = None
+        self._dropped_history = None
+        self._lost_running = None
         self._present = set()
         self._now = math.nan
         self.continued = {}
@@ -672,6 +682,10 @@ class OnlineTargetSelector:
         for tid in [t for t, r in self._ended.items() if not (stamp - r.last_stamp <= cfg.join_max_gap_s)]:
             del self._ended[tid]
         self._present = present
+        if self._dropped_history is not None:
+            if self.continued.get(self._dropped_track) != self._dropped_history:
+                self._dropped_track = None  # its motion broke and the join did not give the history back
+            self._dropped_history = None
         self._handover(stamp, measured_now)
         target = self._choose(stamp)
         if target is not None:
@@ -688,6 +702,7 @@ class OnlineTargetSelector:
         if running is not None:
             running.excluded_heir = track_id
             self._dropped_track = track_id
+            self._dropped_history = None
 
     def identity_changed(self, track_id: str, stamp: float) -> None:
         """The track's world motion stopped fitting its history (its filter restarted after repeated outliers).
@@ -698,18 +713,19 @@ class OnlineTargetSelector:
         target is lost: no stand-in takes over unless the join brings the history back.
         """
         running = self._running.pop(track_id, None)
-        if track_id == self._dropped_track:
-            self._dropped_track = None  # its motion broke: it no longer holds the role's place
         if running is None:
             return
         self.identity_changes += 1
         key = f"{track_id}~{self.identity_changes}"
         self._ended[key] = running
+        if track_id == self._dropped_track:
+            self._dropped_history = key  # unless the join gives it straight back, its motion broke: the wait ends
         if track_id == self.target:
             self._target_lost(key, running, stamp)
 
     def _target_lost(self, tid: str, running: _Running, stamp: float) -> None:
         self._last_target_ended = tid
+        self._lost_running = running
         self._lost_score = running.score(self.config, stamp)
         self._lost_stamp = stamp
         self.target = None
@@ -826,11 +842,9 @@ class OnlineTargetSelector:
         return self.config.reacquire_waits_for_dropped_track and self._dropped_track in self._present
 
     def _carries_lost_target(self, track_id: str) -> bool:
-        """The track dropped from the role, or one that continued the lost target's history (online join)."""
+        """The track dropped from the role, or one continuing the lost target's history (the object is handed down)."""
         running = self._running.get(track_id)
-        return track_id == self._dropped_track or (
-            running is not None and self._last_target_ended is not None
-            and running.inherited_from == self._last_target_ended)
+        return track_id == self._dropped_track or (running is not None and running is self._lost_running)
 
     def _reacquired(self, stamp: float) -> str | None:
         """The established track whose recent boxes say most strongly that the vessel of interest is back.
