@@ -879,7 +879,6 @@ class OnlineTargetSelector:
             self._challenger = None
             self._pending_target = None
             self._last_target_ended = None
-            self._dropped_track = None
             self.reacquisitions += 1
             return tid
         return None
