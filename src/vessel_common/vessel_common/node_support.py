@@ -8,7 +8,6 @@ that stop the node at start with one clear line.
 
 from __future__ import annotations
 
-import importlib
 import math
 import signal
 import sys
@@ -32,6 +31,7 @@ from rclpy.qos import (
 )
 
 from vessel_common.errors import DataError, VesselError
+from vessel_common.imports import import_serialized
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
@@ -445,7 +445,7 @@ class _Preloader:
     def _import(self, modules: tuple[str, ...]) -> None:
         for name in modules:
             try:
-                importlib.import_module(name)
+                import_serialized(name)
             except Exception as error:  # reported by check() in the node's thread
                 self.failure = (f"cannot import {name} ({type(error).__name__}: {error}): install the "
                                 "requirements with ./vessel setup")

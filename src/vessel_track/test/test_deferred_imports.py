@@ -33,3 +33,21 @@ def test_a_preload_that_fails_stops_the_node_with_one_line():
     assert done.returncode == 2, done.stderr
     assert "error: cannot import vessel_no_such_module" in done.stderr
     assert "./vessel setup" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_deferred_import_waits_while_another_thread_imports():
+    # The preload thread and a first callback importing SciPy at once can get a partly initialised module;
+    # the deferred functions wait for the process-wide import lock instead of importing beside it.
+    code = ("import sys, threading\n"
+            "from vessel_common import imports\n"
+            "from vessel_track import deferred_imports\n"
+            "with imports._IMPORT_LOCK:\n"
+            "    worker = threading.Thread(target=deferred_imports.kalman_filter, args=(4, 2))\n"
+            "    worker.start()\n"
+            "    worker.join(1.0)\n"
+            "    print(worker.is_alive(), 'filterpy' in sys.modules)\n"
+            "worker.join(60)\n"
+            "print(worker.is_alive(), 'filterpy' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:2] == ["True False", "False True"]

@@ -3,7 +3,8 @@
 ``scipy.optimize`` and ``filterpy.kalman`` (which pulls in ``scipy.stats``) are most of a tracking node's start-up
 time. A node restarted after a crash has to import them and to be discovered again; ``run_node(preload=MODULES)``
 imports them in a background thread while the node connects, so the restart costs the longer of the two, not
-their sum.
+their sum. Both import through ``vessel_common.imports.import_serialized``: SciPy imported by two threads at once
+can fail.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from vessel_common.imports import import_serialized
 
 if TYPE_CHECKING:
     from filterpy.kalman import KalmanFilter
@@ -21,13 +24,9 @@ MODULES = ("scipy.optimize", "filterpy.kalman")
 
 def linear_sum_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``scipy.optimize.linear_sum_assignment`` (rows, columns of the cheapest assignment)."""
-    from scipy.optimize import linear_sum_assignment as solve
-
-    return solve(cost)
+    return import_serialized("scipy.optimize").linear_sum_assignment(cost)
 
 
 def kalman_filter(dim_x: int, dim_z: int) -> KalmanFilter:
     """A new ``filterpy.kalman.KalmanFilter``."""
-    from filterpy.kalman import KalmanFilter
-
-    return KalmanFilter(dim_x=dim_x, dim_z=dim_z)
+    return import_serialized("filterpy.kalman").KalmanFilter(dim_x=dim_x, dim_z=dim_z)
