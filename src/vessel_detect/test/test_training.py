@@ -144,6 +144,25 @@ def test_close_ups_of_other_boats_with_zoom_other():
         assert np.any(random_sample(image, labels, 150.0, np.random.default_rng(seed), never).classes == 0)
 
 
+def test_the_scale_range_option_is_checked_and_defaults_to_the_augmentation_default():
+    from vessel_detect.training.train_cli import _scale_range
+
+    assert _scale_range("0.4,1.6") == (0.4, 1.6)
+    assert _scale_range(",".join(f"{v:g}" for v in AugmentSettings().scale_range)) == AugmentSettings().scale_range
+    for wrong in ("1.6,0.4", "0,1", "a,b", "0.5", "nan,1"):
+        with pytest.raises(DataError, match="--scale-range"):
+            _scale_range(wrong)
+
+
+def test_a_lower_scale_range_shows_the_boats_smaller():
+    image, labels = _frame_with_boat(None)  # the vessel 40 px wide
+    small = AugmentSettings(crop_wh=(256, 128), zoom_target=0.0, scale_range=(0.4, 0.5))
+    for seed in range(20):
+        sample = random_sample(image, labels, 150.0, np.random.default_rng(seed), small)
+        vessel = sample.boxes[sample.classes == 0]
+        assert np.all(vessel[:, 2] - vessel[:, 0] <= 0.5 * 40 + 1e-6)
+
+
 # --------------------------------------------------------------------------------- PyTorch from here on
 torch = pytest.importorskip("torch", reason="the training extra is not installed: ./vessel setup --train")
 pytest.importorskip("onnx2torch", reason="the training extra is not installed: ./vessel setup --train")

@@ -196,15 +196,14 @@ class SelectionConfig:
         if not (isinstance(threshold, int | float) and math.isfinite(threshold) and threshold >= 0):
             raise DataError(f"selection: reacquire_recent_evidence must be a finite number of log-odds >= 0 (0: off), "
                             f"got {threshold!r}")
-        if threshold > 0 and not (self.recent_evidence_s > 0 and self.confidence_score == "evidence"):
-            raise DataError("selection: reacquire_recent_evidence needs confidence_score: evidence and "
-                            "recent_evidence_s > 0 (it sums the confidences of that window); set them, or set "
-                            "reacquire_recent_evidence to 0")
-        if self.reacquire_waits_for_dropped_track and not (self.recent_evidence_s > 0
-                                                           and self.confidence_score == "evidence"):
-            raise DataError("selection: reacquire_waits_for_dropped_track needs confidence_score: evidence and "
-                            "recent_evidence_s > 0 (a target is dropped for the boxes of that window); set them, or "
-                            "set reacquire_waits_for_dropped_track to false")
+        recent_window = self.recent_evidence_s > 0 and self.confidence_score == "evidence"
+        for name, is_on, why, off in (
+                ("reacquire_recent_evidence", threshold > 0, "it sums the confidences of that window", "to 0"),
+                ("reacquire_waits_for_dropped_track", self.reacquire_waits_for_dropped_track,
+                 "a target is dropped for the boxes of that window", "to false")):
+            if is_on and not recent_window:
+                raise DataError(f"selection: {name} needs confidence_score: evidence and recent_evidence_s > 0 "
+                                f"({why}); set them, or set {name} {off}")
         for name in ("recent_evidence_s", "evidence_half_life_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):

@@ -56,11 +56,25 @@ def add_parser(sub) -> None:
     train.add_argument("--zoom-other", type=float, default=defaults.augment.zoom_other,
                        help="share of the close-up crops centred on another boat of the frame instead of the vessel "
                             f"of interest (default {defaults.augment.zoom_other:g}: all on the vessel)")
+    train.add_argument("--scale-range", default=",".join(f"{v:g}" for v in defaults.augment.scale_range),
+                       help="LO,HI: ordinary crops are resized by a factor drawn log-uniformly from this range (below "
+                            "1 the boats look smaller, as farther ones do; default "
+                            f"{','.join(f'{v:g}' for v in defaults.augment.scale_range)})")
     train.add_argument("--input-size", default=f"{defaults.input_hw[1]}x{defaults.input_hw[0]}",
                        help="exported network input WIDTHxHEIGHT, multiples of 32 (default 1280x352: the band)")
     train.add_argument("--crop-size", default=f"{defaults.augment.crop_wh[0]}x{defaults.augment.crop_wh[1]}",
                        help="training crop WIDTHxHEIGHT, multiples of 32")
     train.set_defaults(func=cmd_train)
+
+
+def _scale_range(text: str) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in text.split(","))
+    except ValueError:
+        raise DataError(f"--scale-range '{text}' is not LO,HI, e.g. 0.7,1.6") from None
+    if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
+        raise DataError(f"--scale-range {text}: give two positive factors, the lower first, e.g. 0.7,1.6")
+    return low, high
 
 
 def _size(text: str, what: str) -> tuple[int, int]:
@@ -123,10 +137,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise DataError(f"--out {out}: the model is written as ONNX, give a path ending in .onnx")
     input_w, input_h = _size(args.input_size, "--input-size")
     crop = _size(args.crop_size, "--crop-size")
+    scale_range = _scale_range(args.scale_range)
     settings = TrainSettings(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
                              class_min_height_px=args.class_min_height,
-                             augment=AugmentSettings(crop_wh=crop, zoom_other=args.zoom_other))
+                             augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
+                                                             zoom_other=args.zoom_other))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
     if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
