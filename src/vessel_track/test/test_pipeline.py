@@ -191,10 +191,35 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
         assert "selection.identity_changes" in counts["13"]
     captured = capsys.readouterr()
     assert "m/100m" in captured.out
+    # The frame without a detection, 4 s after the last one: reported only when coasting that long is allowed
+    published = {}
+    for max_coast in ("12", "2"):
+        assert pl.main(["--data", str(data), "--videos", "13-14", "--detections", str(detections), "--out", str(out),
+                        "--no-plots", "--calib", str(_camera_yaml(tmp_path, camera)), "--max-coast", max_coast]) == 0
+        published[max_coast] = (out / "predictions.csv").read_text().count("\n") - 1
+    assert published["12"] == published["2"] + 2, published
+    captured = capsys.readouterr()
     # config/aitas.yaml corrects for the tide, this calibration was made without it: said, and run without
     assert "running without the tide correction" in captured.err
     assert pl.main(["--data", str(data), "--detections", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_the_coasting_limit_comes_from_the_gps_publisher_block_as_the_nodes_read_it(tmp_path):
+    from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS
+
+    node_default = GPS_PUBLISHER_PARAMETERS["max_coast_s"][0]
+    params = tmp_path / "params.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    max_coast_s: 7.0\n"
+                      "gps_publisher:\n  ros__parameters:\n    max_coast_s: 3.5\n")
+    assert pl.max_coast_of_params(params) == 3.5
+    params.write_text("fuser:\n  ros__parameters:\n    qos_depth: 5\n")
+    assert pl.max_coast_of_params(params) == node_default
+    assert pl.max_coast_of_params(None) == node_default
+    for wrong in ("-1.0", "'soon'", ".nan", "true"):
+        params.write_text(f"gps_publisher:\n  ros__parameters:\n    max_coast_s: {wrong}\n")
+        with pytest.raises(DataError, match="gps_publisher max_coast_s"):
+            pl.max_coast_of_params(params)
 
 
 def test_the_demo_turns_the_tide_off_for_a_calibration_made_without_it(tmp_path):

@@ -50,6 +50,7 @@ from vessel_track.distance_model_fit import cross_validated_cue_statistics, fit_
 from vessel_track.evaluation import evaluate, format_table
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
 from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS
 from vessel_track.offline_data import (
     PREDICTION_HEADER,
     DetectionFrame,
@@ -64,7 +65,7 @@ from vessel_track.offline_data import (
 )
 from vessel_track.selection import Trajectory, select_target
 from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig, load_tracker_config
+from vessel_track.tracker import MultiTargetTracker, TrackerConfig, load_tracker_config, node_values
 
 MODES = ("online", "offline")
 
@@ -473,7 +474,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--params", type=Path, default=None, help="parameter YAML with the fuser block "
                                                                   "(default: config/aitas.yaml or "
                                                                   "config/parts/fuser.yaml)")
-    parser.add_argument("--max-coast", type=float, default=12.0, help="report a coasting target this long, s")
+    parser.add_argument("--max-coast", type=float, default=None,
+                        help="report a coasting target this long, s (default: the parameter file's gps_publisher "
+                             "max_coast_s, as the nodes)")
     parser.add_argument("--leave-one-out", metavar="TRAIN_VIDEOS", default=None,
                         help="calibrate and fit the fusion for each video on these training videos minus that one "
                              "(e.g. 7-12 with --videos 7-12): out-of-sample scores for the error model fit")
@@ -492,6 +495,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-eval", action="store_true", help="do not score the predictions")
     parser.add_argument("--no-plots", action="store_true", help="score without plots")
     return parser
+
+
+def max_coast_of_params(params_path: Path | None) -> float:
+    """The GPS publisher's ``max_coast_s`` of a parameter YAML (the node's default where the file has none)."""
+    default = GPS_PUBLISHER_PARAMETERS["max_coast_s"][0]
+    value = node_values(params_path, "gps_publisher").get("max_coast_s", default) if params_path else default
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
+        raise DataError(f"{params_path}: gps_publisher max_coast_s must be a number of seconds >= 0, got {value!r}; "
+                        "fix the file")
+    return float(value)
 
 
 def _frames_and_settings(args, dataset, videos, camera, camera_source: str, params_path):
@@ -524,8 +537,10 @@ def main(argv: list[str] | None = None) -> int:
     camera, camera_source = load_camera(args.calib, dataset)
     params_path = args.params if args.params is not None else default_params_path()
     frames, settings = _frames_and_settings(args, dataset, videos, camera, camera_source, params_path)
-    config = PipelineConfig(args.mode, args.screen_source, args.max_coast, load_tracker_config(params_path),
-                            settings)
+    max_coast_s = args.max_coast if args.max_coast is not None else max_coast_of_params(params_path)
+    if not (math.isfinite(max_coast_s) and max_coast_s >= 0):
+        raise DataError(f"--max-coast must be a number of seconds >= 0, got {args.max_coast}")
+    config = PipelineConfig(args.mode, args.screen_source, max_coast_s, load_tracker_config(params_path), settings)
     if args.leave_one_out:
         results = leave_one_video_out(dataset, frames, parse_videos(args.leave_one_out), config,
                                       camera.box_anchor)
