@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from vessel_track import deferred_imports
 
@@ -51,3 +52,26 @@ def test_a_deferred_import_waits_while_another_thread_imports():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split("\n")[:2] == ["True False", "False True"]
+
+
+def test_the_preload_waits_for_the_import_lock_too():
+    code = ("import sys, time\n"
+            "from vessel_common import imports\n"
+            "from vessel_common.node_support import _Preloader\n"
+            "with imports._IMPORT_LOCK:\n"
+            "    preloader = _Preloader(['colorsys'])\n"
+            "    preloader.thread.join(1.0)\n"
+            "    print(preloader.thread.is_alive(), 'colorsys' in sys.modules)\n"
+            "preloader.thread.join(60)\n"
+            "print(preloader.thread.is_alive(), 'colorsys' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:2] == ["True False", "False True"]
+
+
+def test_a_library_that_cannot_be_imported_is_one_clear_error(monkeypatch):
+    from vessel_common.errors import VesselError
+
+    monkeypatch.setitem(sys.modules, "filterpy.kalman", None)  # what Python does for a module it cannot import
+    with pytest.raises(VesselError, match=r"cannot import filterpy.kalman .*\./vessel setup"):
+        deferred_imports.kalman_filter(dim_x=4, dim_z=2)

@@ -191,16 +191,21 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
         assert "selection.identity_changes" in counts["13"]
     captured = capsys.readouterr()
     assert "m/100m" in captured.out
-    # The frame without a detection, 4 s after the last one: reported only when coasting that long is allowed
-    published = {}
-    for max_coast in ("12", "2"):
-        assert pl.main(["--data", str(data), "--videos", "13-14", "--detections", str(detections), "--out", str(out),
-                        "--no-plots", "--calib", str(_camera_yaml(tmp_path, camera)), "--max-coast", max_coast]) == 0
-        published[max_coast] = (out / "predictions.csv").read_text().count("\n") - 1
-    assert published["12"] == published["2"] + 2, published
-    captured = capsys.readouterr()
     # config/aitas.yaml corrects for the tide, this calibration was made without it: said, and run without
     assert "running without the tide correction" in captured.err
+    # The frame without a detection, 4 s after the last one: reported only when coasting that long is allowed,
+    # by the parameter file's gps_publisher block (as the node reads it) unless --max-coast overrides it
+    published = {}
+    for file_value, flag in (("12.0", []), ("2.0", []), ("12.0", ["--max-coast", "2"])):
+        params = tmp_path / "params.yaml"
+        params.write_text(f"gps_publisher:\n  ros__parameters:\n    max_coast_s: {file_value}\n")
+        assert pl.main(["--data", str(data), "--videos", "13-14", "--detections", str(detections), "--out", str(out),
+                        "--no-plots", "--calib", str(_camera_yaml(tmp_path, camera)), "--params", str(params),
+                        *flag]) == 0
+        published[(file_value, *flag)] = (out / "predictions.csv").read_text().count("\n") - 1
+    assert published[("12.0",)] == published[("2.0",)] + 2, published
+    assert published[("12.0", "--max-coast", "2")] == published[("2.0",)], published
+    capsys.readouterr()
     assert pl.main(["--data", str(data), "--detections", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
 
@@ -216,7 +221,7 @@ def test_the_coasting_limit_comes_from_the_gps_publisher_block_as_the_nodes_read
     params.write_text("fuser:\n  ros__parameters:\n    qos_depth: 5\n")
     assert pl.max_coast_of_params(params) == node_default
     assert pl.max_coast_of_params(None) == node_default
-    for wrong in ("-1.0", "'soon'", ".nan", "true"):
+    for wrong in ("-1.0", "'soon'", ".nan", "true", "2", "2.0e7"):
         params.write_text(f"gps_publisher:\n  ros__parameters:\n    max_coast_s: {wrong}\n")
         with pytest.raises(DataError, match="gps_publisher max_coast_s"):
             pl.max_coast_of_params(params)

@@ -30,7 +30,7 @@ from vessel_calib.camera_parameters import declare_camera_model
 from vessel_common.node_support import NodeHealth, Standby, declare_parameter, reliable_qos, stamp_to_sec
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
-from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, main_with_checks
+from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, MAX_COAST_RANGE_S, main_with_checks
 
 COVARIANCE_MODES = ("sum", "filter", "error_model", "max")
 STATUS_LOST = 3
@@ -151,7 +151,7 @@ class GpsPublisherNode(Node):
         fix_topic = param("fix_topic")
         fixes_topic = param("fixes_topic")
         self.frame_id = param("frame_id")
-        self.max_coast_s = param("max_coast_s", float_range=(0.0, 1e6))
+        self.max_coast_s = param("max_coast_s", float_range=MAX_COAST_RANGE_S)
         self.covariance_mode = param("covariance_mode", additional_constraints="one of sum, filter, error_model, max")
         covariance_type = param("covariance_type", additional_constraints="known or approximated")
         self.altitude_m = param("altitude_m")

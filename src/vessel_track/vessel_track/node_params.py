@@ -197,6 +197,9 @@ FUSER_TOPICS = {
     "qos_depth": (10, "Queue depth of the reliable input and output."),
 }
 
+MAX_COAST_RANGE_S = (0.0, 1.0e6)
+"""The values the gps_publisher's ``max_coast_s`` may take, s."""
+
 GPS_PUBLISHER_PARAMETERS = {
     "input_topic": ("/vessel/tracks", "World tracks from the fuser (VesselTrackArray)."),
     "fix_topic": ("/vessel/fix", "NavSatFix of the vessel of interest."),

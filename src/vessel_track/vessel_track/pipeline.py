@@ -50,7 +50,7 @@ from vessel_track.distance_model_fit import cross_validated_cue_statistics, fit_
 from vessel_track.evaluation import evaluate, format_table
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
 from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
-from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS
+from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, MAX_COAST_RANGE_S
 from vessel_track.offline_data import (
     PREDICTION_HEADER,
     DetectionFrame,
@@ -501,10 +501,11 @@ def max_coast_of_params(params_path: Path | None) -> float:
     """The GPS publisher's ``max_coast_s`` of a parameter YAML (the node's default where the file has none)."""
     default = GPS_PUBLISHER_PARAMETERS["max_coast_s"][0]
     value = node_values(params_path, "gps_publisher").get("max_coast_s", default) if params_path else default
-    if isinstance(value, bool) or not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
-        raise DataError(f"{params_path}: gps_publisher max_coast_s must be a number of seconds >= 0, got {value!r}; "
-                        "fix the file")
-    return float(value)
+    low, high = MAX_COAST_RANGE_S
+    if not (isinstance(value, float) and low <= value <= high):
+        raise DataError(f"{params_path}: gps_publisher max_coast_s must be a floating-point number of seconds from "
+                        f"{low:g} to {high:g}, as the node declares it (write 2.0, not 2), got {value!r}; fix the file")
+    return value
 
 
 def _frames_and_settings(args, dataset, videos, camera, camera_source: str, params_path):

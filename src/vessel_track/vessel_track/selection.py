@@ -196,6 +196,10 @@ class SelectionConfig:
         if not (isinstance(threshold, int | float) and math.isfinite(threshold) and threshold >= 0):
             raise DataError(f"selection: reacquire_recent_evidence must be a finite number of log-odds >= 0 (0: off), "
                             f"got {threshold!r}")
+        for name in ("recent_evidence_s", "evidence_half_life_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise DataError(f"selection: {name} must be a finite number of seconds >= 0 (0: off), got {value!r}")
         recent_window = self.recent_evidence_s > 0 and self.confidence_score == "evidence"
         for name, is_on, why, off in (
                 ("reacquire_recent_evidence", threshold > 0, "it sums the confidences of that window", "to 0"),
@@ -204,10 +208,6 @@ class SelectionConfig:
             if is_on and not recent_window:
                 raise DataError(f"selection: {name} needs confidence_score: evidence and recent_evidence_s > 0 "
                                 f"({why}); set them, or set {name} {off}")
-        for name in ("recent_evidence_s", "evidence_half_life_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise DataError(f"selection: {name} must be a finite number of seconds >= 0 (0: off), got {value!r}")
 
     def trajectory_score(self, confidences, path_m: float, consistent: int, known: int, ages=None) -> float:
         """``trajectory_score`` with this configuration.

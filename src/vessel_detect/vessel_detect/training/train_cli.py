@@ -142,7 +142,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
                              class_min_height_px=args.class_min_height,
                              augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
-                                                             zoom_other=args.zoom_other))
+                                                     zoom_other=args.zoom_other))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
     if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
