@@ -36,37 +36,28 @@ def test_a_preload_that_fails_stops_the_node_with_one_line():
     assert "./vessel setup" in done.stderr and "Traceback" not in done.stderr
 
 
+def _waits_for_the_import_lock(setup: str, start: str, module: str) -> None:
+    """In a fresh process: ``start`` (a thread that imports ``module``) waits while the import lock is held."""
+    code = (f"import sys, threading\nfrom vessel_common import imports\n{setup}\n"
+            f"with imports._IMPORT_LOCK:\n    worker = {start}\n    worker.join(1.0)\n"
+            f"    print(worker.is_alive(), {module!r} in sys.modules)\n"
+            f"worker.join(60)\nprint(worker.is_alive(), {module!r} in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:2] == ["True False", "False True"]
+
+
 def test_a_deferred_import_waits_while_another_thread_imports():
     # The preload thread and a first callback importing SciPy at once can get a partly initialised module;
     # the deferred functions wait for the process-wide import lock instead of importing beside it.
-    code = ("import sys, threading\n"
-            "from vessel_common import imports\n"
-            "from vessel_track import deferred_imports\n"
-            "with imports._IMPORT_LOCK:\n"
-            "    worker = threading.Thread(target=deferred_imports.kalman_filter, args=(4, 2))\n"
-            "    worker.start()\n"
-            "    worker.join(1.0)\n"
-            "    print(worker.is_alive(), 'filterpy' in sys.modules)\n"
-            "worker.join(60)\n"
-            "print(worker.is_alive(), 'filterpy' in sys.modules)\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split("\n")[:2] == ["True False", "False True"]
+    _waits_for_the_import_lock(
+        "from vessel_track import deferred_imports",
+        "threading.Thread(target=deferred_imports.kalman_filter, args=(4, 2)); worker.start()", "filterpy")
 
 
 def test_the_preload_waits_for_the_import_lock_too():
-    code = ("import sys, time\n"
-            "from vessel_common import imports\n"
-            "from vessel_common.node_support import _Preloader\n"
-            "with imports._IMPORT_LOCK:\n"
-            "    preloader = _Preloader(['colorsys'])\n"
-            "    preloader.thread.join(1.0)\n"
-            "    print(preloader.thread.is_alive(), 'colorsys' in sys.modules)\n"
-            "preloader.thread.join(60)\n"
-            "print(preloader.thread.is_alive(), 'colorsys' in sys.modules)\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split("\n")[:2] == ["True False", "False True"]
+    _waits_for_the_import_lock("from vessel_common.node_support import _Preloader",
+                               "_Preloader(['colorsys']).thread", "colorsys")
 
 
 def test_a_library_that_cannot_be_imported_is_one_clear_error(monkeypatch):
