@@ -446,9 +446,8 @@ class _Preloader:
         for name in modules:
             try:
                 import_serialized(name)
-            except Exception as error:  # reported by check() in the node's thread
-                self.failure = (f"cannot import {name} ({type(error).__name__}: {error}): install the "
-                                "requirements with ./vessel setup")
+            except VesselError as error:  # reported by check() in the node's thread
+                self.failure = str(error)
                 return
 
     def check(self) -> None:

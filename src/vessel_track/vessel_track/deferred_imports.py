@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from vessel_common.errors import VesselError
 from vessel_common.imports import import_serialized
 
 if TYPE_CHECKING:
@@ -23,19 +22,11 @@ MODULES = ("scipy.optimize", "filterpy.kalman")
 """What a node using the tracker or the target selection preloads."""
 
 
-def _module(name: str):
-    try:
-        return import_serialized(name)
-    except ImportError as error:
-        raise VesselError(f"cannot import {name} ({type(error).__name__}: {error}): install the requirements with "
-                          "./vessel setup") from None
-
-
 def linear_sum_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``scipy.optimize.linear_sum_assignment`` (rows, columns of the cheapest assignment)."""
-    return _module("scipy.optimize").linear_sum_assignment(cost)
+    return import_serialized("scipy.optimize").linear_sum_assignment(cost)
 
 
 def kalman_filter(dim_x: int, dim_z: int) -> KalmanFilter:
     """A new ``filterpy.kalman.KalmanFilter``."""
-    return _module("filterpy.kalman").KalmanFilter(dim_x=dim_x, dim_z=dim_z)
+    return import_serialized("filterpy.kalman").KalmanFilter(dim_x=dim_x, dim_z=dim_z)

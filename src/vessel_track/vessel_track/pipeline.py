@@ -538,8 +538,11 @@ def main(argv: list[str] | None = None) -> int:
     camera, camera_source = load_camera(args.calib, dataset)
     params_path = args.params if args.params is not None else default_params_path()
     frames, settings = _frames_and_settings(args, dataset, videos, camera, camera_source, params_path)
-    max_coast_s = args.max_coast if args.max_coast is not None else max_coast_of_params(params_path)
-    if not (math.isfinite(max_coast_s) and max_coast_s >= 0):
+    if args.max_coast is None:
+        max_coast_s = max_coast_of_params(params_path)
+    elif math.isfinite(args.max_coast) and args.max_coast >= 0:
+        max_coast_s = args.max_coast
+    else:
         raise DataError(f"--max-coast must be a number of seconds >= 0, got {args.max_coast}")
     config = PipelineConfig(args.mode, args.screen_source, max_coast_s, load_tracker_config(params_path), settings)
     if args.leave_one_out:

@@ -56,10 +56,10 @@ def add_parser(sub) -> None:
     train.add_argument("--zoom-other", type=float, default=defaults.augment.zoom_other,
                        help="share of the close-up crops centred on another boat of the frame instead of the vessel "
                             f"of interest (default {defaults.augment.zoom_other:g}: all on the vessel)")
-    train.add_argument("--scale-range", default=",".join(f"{v:g}" for v in defaults.augment.scale_range),
+    scale_range = ",".join(f"{v:g}" for v in defaults.augment.scale_range)
+    train.add_argument("--scale-range", default=scale_range,
                        help="LO,HI: ordinary crops are resized by a factor drawn log-uniformly from this range (below "
-                            "1 the boats look smaller, as farther ones do; default "
-                            f"{','.join(f'{v:g}' for v in defaults.augment.scale_range)})")
+                            f"1 the boats look smaller, as farther ones do; default {scale_range})")
     train.add_argument("--input-size", default=f"{defaults.input_hw[1]}x{defaults.input_hw[0]}",
                        help="exported network input WIDTHxHEIGHT, multiples of 32 (default 1280x352: the band)")
     train.add_argument("--crop-size", default=f"{defaults.augment.crop_wh[0]}x{defaults.augment.crop_wh[1]}",
