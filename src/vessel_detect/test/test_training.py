@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 from pathlib import Path
 
@@ -56,6 +57,43 @@ def test_without_a_matching_box_the_size_model_places_the_vessel():
     assert labels.target_source == "size_model"
     np.testing.assert_allclose(labels.boxes[labels.classes == TARGET_CLASS][0], [610.0, 410.5, 670.0, 440.5])
     assert (labels.classes == OTHER_CLASS).sum() == 1
+
+
+def test_a_vessel_box_the_projection_missed_snaps_onto_the_nearest_box_of_its_size():
+    projection = Projection(1, 2, True, True, (640.0, 430.0), 40.0)  # expected [610, 410.5, 670, 440.5]
+    beside = np.array([[650.0, 415.0, 710.0, 435.0]])  # two thirds of a width to the right: no x match
+    off = frame_labels(projection, beside, np.array([0.9]), SIZE, 0.65, (1280, 720), LabelSettings())
+    assert off.target_source == "size_model"
+    on = frame_labels(projection, beside, np.array([0.9]), SIZE, 0.65, (1280, 720), LabelSettings(snap_widths=1.0))
+    assert on.target_source == "snapped"
+    np.testing.assert_allclose(on.boxes[on.classes == TARGET_CLASS][0], [650.0, 410.0, 710.0, 440.0])
+    assert (on.classes == OTHER_CLASS).sum() == 0  # the box it snapped onto is the vessel, not another boat
+    narrow = frame_labels(projection, beside, np.array([0.9]), SIZE, 0.65, (1280, 720), LabelSettings(snap_widths=0.5))
+    assert narrow.target_source == "size_model"
+
+
+def test_snapping_skips_boxes_of_another_size_and_can_use_a_trained_models_boxes():
+    projection = Projection(1, 2, True, True, (640.0, 430.0), 40.0)
+    small = np.array([[655.0, 420.0, 670.0, 430.0]])  # a quarter of the width: a buoy or a piece
+    labels = frame_labels(projection, small, np.array([0.9]), SIZE, 0.65, (1280, 720), LabelSettings(snap_widths=1.0))
+    assert labels.target_source == "size_model"
+    trained = np.array([[580.0, 414.0, 636.0, 436.0]])
+    labels = frame_labels(projection, np.zeros((0, 4)), np.zeros(0), SIZE, 0.65, (1280, 720),
+                          LabelSettings(snap_widths=1.0), snap_boxes=trained)
+    assert labels.target_source == "snapped" and labels.classes.tolist() == [TARGET_CLASS] and len(labels.ignore) == 0
+    np.testing.assert_allclose(labels.boxes[0], [580.0, 410.5 - 0.5, 636.0, 440.5 - 0.5])
+
+
+def test_the_snapping_options_are_checked():
+    from vessel_detect.training.train_cli import add_parser, cmd_train
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    for extra, message in ((["--snap-widths", "nan"], "--snap-widths"), (["--snap-widths", "-1"], "--snap-widths"),
+                           (["--snap-detections", "x.csv"], "--snap-detections needs --snap-widths")):
+        args = parser.parse_args(["train", "--out", "m.onnx", *extra])
+        with pytest.raises(DataError, match=message):
+            cmd_train(args)
 
 
 def test_stale_gps_leaves_the_frame_out_and_out_of_view_keeps_other_boats():
@@ -310,3 +348,53 @@ def test_training_without_labels_is_refused(tiny_onnx):
 
     with pytest.raises(DataError, match="no training frames"):
         train(tiny_onnx, [], {}, None, _smoke_settings(), log=lambda m: None)
+
+
+def test_the_weight_average_follows_the_weights_with_its_ramped_decay():
+    import torch
+
+    from vessel_detect.training.trainer import WeightAverage
+
+    model = torch.nn.Sequential(torch.nn.Linear(2, 1), torch.nn.BatchNorm1d(1))
+    with torch.no_grad():
+        model[0].weight.fill_(1.0)
+    average = WeightAverage(model, decay=0.5)
+    with torch.no_grad():
+        model[0].weight.fill_(3.0)
+    model[1].num_batches_tracked.fill_(7)
+    average.update(model)
+    decay = 2.0 / 11.0  # the ramp, below 0.5 at the first update
+    np.testing.assert_allclose(average.model[0].weight.numpy(), decay * 1.0 + (1 - decay) * 3.0, rtol=1e-6)
+    assert int(average.model[1].num_batches_tracked) == 7  # counters are copied, not averaged
+    for _ in range(50):
+        average.update(model)
+    np.testing.assert_allclose(average.model[0].weight.numpy(), 3.0, rtol=1e-6)
+    assert not any(p.requires_grad for p in average.model.parameters())
+    with pytest.raises(DataError, match="decay"):
+        WeightAverage(model, decay=1.0)
+
+
+def test_training_with_a_weight_average_returns_and_exports_the_average(tiny_onnx, tmp_path):
+    from dataclasses import replace
+
+    from vessel_detect.detector import letterbox
+    from vessel_detect.training.trainer import save_model, train
+
+    images, labels = _synthetic_set()
+    last = train(tiny_onnx, labels, images, None, _smoke_settings(), log=lambda m: None)[0]
+    averaged_settings = replace(_smoke_settings(), ema_decay=0.9)
+    averaged = train(tiny_onnx, labels, images, None, averaged_settings, log=lambda m: None)[0]
+    gaps = [float((a - b).abs().max()) for a, b in zip(last.parameters(), averaged.parameters(), strict=True)]
+    assert max(gaps) > 1e-4  # the same steps, but the average lags behind the last weights
+    probe, _ = letterbox(images[(1, 0)], (128, 256))
+    assert save_model(averaged, tmp_path / "model.onnx", averaged_settings, probe, tolerance=1e-3) <= 1e-3
+
+
+def test_the_weight_average_option_is_checked():
+    from vessel_detect.training.train_cli import add_parser, cmd_train
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    for wrong in ("1", "-0.5", "nan"):
+        with pytest.raises(DataError, match="--ema-decay"):
+            cmd_train(parser.parse_args(["train", "--out", "m.onnx", "--ema-decay", wrong]))

@@ -112,6 +112,15 @@ def test_online_selection_has_hysteresis():
     assert switched_at - ahead_since >= 8.0
 
 
+def test_boxes_of_the_wrong_size_lower_a_score_whatever_its_sign():
+    for confidences in (np.full(5, 0.8), np.full(5, 0.2)):  # positive evidence, then negative
+        all_agree = trajectory_score(confidences, 500.0, consistent=5, known=5, mode="evidence")
+        none_agree = trajectory_score(confidences, 500.0, consistent=0, known=5, mode="evidence")
+        assert none_agree < all_agree
+    assert trajectory_score(np.full(5, 0.2), 500.0, consistent=0, known=5, mode="evidence") == pytest.approx(
+        trajectory_score(np.full(5, 0.2), 500.0, mode="evidence") * 7.0)
+
+
 def test_online_evidence_leaves_a_first_track_that_looks_unlike_the_vessel():
     """Video 11's start: the first of two tracks that have not moved yet looks less like the vessel.
 

@@ -62,7 +62,8 @@ class SelectionConfig:
         hour) means no stand-in: the GPS publisher sends NO_FIX rather than another boat as the vessel of interest
         until a track has earned the lost one's share of evidence.
     size_consistency: multiply the score by the share of the trajectory's boxes whose size agrees with their
-        position for a vessel of the fitted size (Laplace-smoothed: (k + 1) / (n + 2)). The distance model is
+        position for a vessel of the fitted size (Laplace-smoothed: (k + 1) / (n + 2); a negative score is
+        divided by it). The distance model is
         fitted to the vessel of interest, so sailboats, ferries and clutter agree less often; with a detector
         that is not trained on the vessel of interest this is most of what tells it apart.
     history_length: confidences kept per track for the percentile.
@@ -281,7 +282,8 @@ def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consi
     (``SelectionConfig.confidence_score``), each times its entry of ``weights`` when given (forgetting);
     ``path_log_floor`` bounds the path factor from below. With
     ``consistent`` given: times ``(consistent + 1) / (known + 2)``, the smoothed share of boxes whose size agrees
-    with the fitted vessel size (``SelectionConfig.size_consistency``).
+    with the fitted vessel size (``SelectionConfig.size_consistency``); a negative evidence score is divided by
+    it instead, so boxes of the wrong size always lower a score.
     """
     c = np.asarray(confidences, dtype=float).reshape(-1)
     w = np.ones_like(c) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
@@ -297,7 +299,8 @@ def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consi
         confidence = float(np.percentile(c, percentile))
     score = confidence * max(math.log(max(path_m, 1.0)), path_log_floor)
     if consistent is not None:
-        score *= (consistent + 1.0) / (known + 2.0)
+        share = (consistent + 1.0) / (known + 2.0)
+        score = score * share if score >= 0 else score / share
     return score
 
 

@@ -23,4 +23,5 @@ class TrainSettings:
     val_every: int = 5
     val_score: float = 0.05
     class_min_height_px: float = 0.0  # boxes lower than this (network px) teach no class (loss.yolox_loss)
+    ema_decay: float = 0.0  # 0: validate and export the last weights; else their moving average (trainer.WeightAverage)
     augment: AugmentSettings = field(default_factory=AugmentSettings)

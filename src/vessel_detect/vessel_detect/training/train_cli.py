@@ -24,6 +24,7 @@ from vessel_common.paths import repo_file, repo_root
 
 def add_parser(sub) -> None:
     """Register ``train`` on the ``detect`` sub-command parser."""
+    from vessel_detect.training.labels import LabelSettings
     from vessel_detect.training.settings import TrainSettings
 
     defaults = TrainSettings()
@@ -44,12 +45,21 @@ def add_parser(sub) -> None:
                             "(default config/detector_coco.yaml)")
     train.add_argument("--coco-detections", help="a saved `detect run --params config/detector_coco.yaml` CSV of "
                        "these frames (default: run the COCO detector now)")
+    train.add_argument("--snap-widths", type=float, default=LabelSettings().snap_widths,
+                       help="a vessel box no COCO box matched moves onto the nearest seed box of its size within this "
+                            "many box widths (the projection misses far boats by about one; default 0: off)")
+    train.add_argument("--snap-detections",
+                       help="a `detect run` CSV of these frames by an earlier trained model: more seed boxes for "
+                            "--snap-widths (default: the COCO boxes only)")
     train.add_argument("--init-model", help="start weights, ONNX (default: the shared COCO YOLOX-Nano)")
     train.add_argument("--epochs", type=int, default=defaults.epochs)
     train.add_argument("--batch-size", type=int, default=defaults.batch_size)
     train.add_argument("--lr", type=float, default=defaults.learning_rate)
     train.add_argument("--seed", type=int, default=defaults.seed)
     train.add_argument("--val-every", type=int, default=defaults.val_every)
+    train.add_argument("--ema-decay", type=float, default=defaults.ema_decay,
+                       help="validate and export a moving average of the weights with this decay per step, e.g. "
+                            f"0.99 (default {defaults.ema_decay:g}: the last weights)")
     train.add_argument("--class-min-height", type=float, default=defaults.class_min_height_px,
                        help="boxes lower than this many network pixels teach objectness but not their class (a boat "
                             f"too small to tell apart; default {defaults.class_min_height_px:g}: every box)")
@@ -140,13 +150,19 @@ def cmd_train(args: argparse.Namespace) -> int:
     scale_range = _scale_range(args.scale_range)
     settings = TrainSettings(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
-                             class_min_height_px=args.class_min_height,
+                             class_min_height_px=args.class_min_height, ema_decay=args.ema_decay,
                              augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
                                                      zoom_other=args.zoom_other))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
     if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
         raise DataError(f"--zoom-other must be a share between 0 and 1, got {args.zoom_other}")
+    if not (math.isfinite(args.ema_decay) and 0 <= args.ema_decay < 1):
+        raise DataError(f"--ema-decay must be 0 (off) or a decay below 1 such as 0.99, got {args.ema_decay}")
+    if not (math.isfinite(args.snap_widths) and 0 <= args.snap_widths <= 5):
+        raise DataError(f"--snap-widths must be a number of box widths between 0 and 5, got {args.snap_widths}")
+    if args.snap_detections and not args.snap_widths > 0:
+        raise DataError("--snap-detections needs --snap-widths above 0 (the seed boxes are used only for snapping)")
     if not (math.isfinite(settings.class_min_height_px) and settings.class_min_height_px >= 0):
         raise DataError(f"--class-min-height must be a number of pixels >= 0, got {args.class_min_height}")
     dataset = open_dataset(args.data)
@@ -165,8 +181,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise DataError(f"start model {init_model} not found: pass --init-model yolox_nano.onnx (the COCO YOLOX-Nano)")
     water = _water_levels(args, args.params)
     detections = coco_detections(args, dataset, frames, camera)
-    label_settings = LabelSettings()
-    labels, size_model = generate_labels(dataset, camera, frames, detections, label_settings, water)
+    label_settings = LabelSettings(snap_widths=args.snap_widths)
+    snap_detections = None
+    if args.snap_detections:
+        from vessel_detect.detections_csv import read_detections_csv
+
+        snap_detections = read_detections_csv(Path(args.snap_detections), confidence="score")
+    labels, size_model = generate_labels(dataset, camera, frames, detections, label_settings, water, snap_detections)
     usable = [lab for lab in labels if lab.status != "gps_invalid"]
     val_only = [f for f in dataset.frames(val_videos) if f.video not in set(videos)] if val_videos and videos else []
     images = read_images(frames + val_only, log=lambda m: print(m, file=sys.stderr))
