@@ -84,16 +84,20 @@ def test_snapping_skips_boxes_of_another_size_and_can_use_a_trained_models_boxes
     np.testing.assert_allclose(labels.boxes[0], [580.0, 410.5 - 0.5, 636.0, 440.5 - 0.5])
 
 
-def test_the_snapping_options_are_checked():
+def _train_is_refused(options: list[str], message: str) -> None:
+    """``detect train --out m.onnx OPTIONS`` stops with a DataError matching ``message`` before any work."""
     from vessel_detect.training.train_cli import add_parser, cmd_train
 
     parser = argparse.ArgumentParser()
     add_parser(parser.add_subparsers())
-    for extra, message in ((["--snap-widths", "nan"], "--snap-widths"), (["--snap-widths", "-1"], "--snap-widths"),
-                           (["--snap-detections", "x.csv"], "--snap-detections needs --snap-widths")):
-        args = parser.parse_args(["train", "--out", "m.onnx", *extra])
-        with pytest.raises(DataError, match=message):
-            cmd_train(args)
+    with pytest.raises(DataError, match=message):
+        cmd_train(parser.parse_args(["train", "--out", "m.onnx", *options]))
+
+
+def test_the_snapping_options_are_checked():
+    for options, message in ((["--snap-widths", "nan"], "--snap-widths"), (["--snap-widths", "-1"], "--snap-widths"),
+                             (["--snap-detections", "x.csv"], "--snap-detections needs --snap-widths")):
+        _train_is_refused(options, message)
 
 
 def test_stale_gps_leaves_the_frame_out_and_out_of_view_keeps_other_boats():
@@ -391,10 +395,5 @@ def test_training_with_a_weight_average_returns_and_exports_the_average(tiny_onn
 
 
 def test_the_weight_average_option_is_checked():
-    from vessel_detect.training.train_cli import add_parser, cmd_train
-
-    parser = argparse.ArgumentParser()
-    add_parser(parser.add_subparsers())
     for wrong in ("1", "-0.5", "nan"):
-        with pytest.raises(DataError, match="--ema-decay"):
-            cmd_train(parser.parse_args(["train", "--out", "m.onnx", "--ema-decay", wrong]))
+        _train_is_refused(["--ema-decay", wrong], "--ema-decay")

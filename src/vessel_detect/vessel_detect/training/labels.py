@@ -188,13 +188,18 @@ def fit_size_model(projections, detections, anchor: float, height_quantile: floa
     return SizeModel(fitted.width, (c, 0.0), len(inv))
 
 
+def _widths_agree(boxes: np.ndarray, width: float, settings: LabelSettings) -> np.ndarray:
+    """Which boxes are at most ``max_size_ratio`` times wider or narrower than ``width``."""
+    widths = np.maximum(boxes[:, 2] - boxes[:, 0], 1e-6)
+    return np.maximum(widths / width, width / widths) <= settings.max_size_ratio
+
+
 def _snapped(expected: np.ndarray, seeds: np.ndarray, settings: LabelSettings) -> np.ndarray | None:
     """``expected`` moved onto the nearest seed of agreeing width within ``snap_widths`` of its width, or None."""
     if not settings.snap_widths > 0 or len(seeds) == 0:
         return None
     width = expected[2] - expected[0]
-    seed_widths = np.maximum(seeds[:, 2] - seeds[:, 0], 1e-6)
-    agrees = np.maximum(seed_widths / width, width / seed_widths) <= settings.max_size_ratio
+    agrees = _widths_agree(seeds, width, settings)
     centre = (expected[:2] + expected[2:]) / 2.0
     distance = np.hypot(*((seeds[:, :2] + seeds[:, 2:]) / 2.0 - centre).T)
     distance = np.where(agrees, distance, np.inf)
@@ -227,9 +232,7 @@ def frame_labels(projection: Projection, boxes: np.ndarray, scores: np.ndarray, 
             overlap = np.minimum(boxes[:, 2], expected[2]) - np.maximum(boxes[:, 0], expected[0])
             span = np.maximum(boxes[:, 2], expected[2]) - np.minimum(boxes[:, 0], expected[0])
             x_iou = np.clip(overlap, 0, None) / np.maximum(span, 1e-6)
-            widths = np.maximum(boxes[:, 2] - boxes[:, 0], 1e-6)
-            ratio = np.maximum(widths / ew, ew / widths)
-            ok = (x_iou >= settings.match_x_iou) & (ratio <= settings.max_size_ratio)
+            ok = (x_iou >= settings.match_x_iou) & _widths_agree(boxes, ew, settings)
             ok &= _containing(boxes, projection.point, margin=max(3.0, 0.25 * eh))
             if ok.any():
                 best = int(np.argmax(np.where(ok, x_iou, -1.0)))
