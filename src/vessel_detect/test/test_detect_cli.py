@@ -190,3 +190,57 @@ def test_recall_at_counts_frames_whose_most_likely_box_is_the_vessel():
     result = detect_cli.recall_at(labels, detections, 0.1)
     assert (result.frame_hits, result.top_hits) == (2, 1) and result.top_rate == pytest.approx(0.5)
     assert detect_cli.recall_at(labels, detections, 0.5).top_hits == 1  # the vessel's 0.3 box is gone at 0.5
+
+
+def test_gps_ranking_counts_boxes_at_the_gps_point_by_range():
+    points = {(7, 0): (130.0, 465.0, 80.0), (7, 1): (530.0, 440.0, 250.0), (7, 2): (900.0, 430.0, 400.0),
+              (7, 3): (300.0, 430.0, 120.0)}
+    detections = {
+        (7, 0): (np.array([[105, 452, 158, 478], [800, 500, 850, 520]], float), np.array([0.9, 0.4])),
+        # the point lies 8 px above this box: within the 10 px margin, not within 5; another box ranks first
+        (7, 1): (np.array([[505, 448, 558, 478], [800, 500, 850, 520]], float), np.array([0.3, 0.6])),
+        (7, 2): (np.array([[10, 500, 40, 520]], float), np.array([0.9])),
+    }  # frame 3: no detection
+    result = detect_cli.gps_ranking(points, detections, 10.0, (0.0, 100.0, 300.0, math.inf))
+    assert (result.frames, result.found, result.top) == ([1, 2, 1], [1, 1, 0], [1, 0, 0])
+    assert detect_cli.gps_ranking(points, detections, 5.0, (0.0, 100.0, 300.0, math.inf)).found == [1, 0, 0]
+    summary = result.as_dict()
+    assert (summary["frames"], summary["top"]) == (4, 1) and summary["bands"][-1]["to_m"] is None
+    with pytest.raises(ValueError, match="increase"):
+        detect_cli.gps_ranking(points, detections, 10.0, (0.0, 100.0, 100.0))
+
+
+def _write_gt_1hz(root, rows):
+    header = ["video", "t_utc_s", "lat", "lon", "valid", "in_view", "dist_m", "x_ref", "y_ref"]
+    with open(root / "gt_1hz.csv", "w", newline="") as handle:
+        csv.writer(handle).writerows([header, *rows])
+
+
+def test_rank_against_the_gps_from_a_detections_file(tiny_dataset, synthetic_params, tmp_path, capsys):
+    out = tmp_path / "dets.csv"
+    assert detect_cli.main(["run", "--data", str(tiny_dataset), "--out", str(out), "--params",
+                            str(synthetic_params), "--quiet"]) == 0
+    inside = (EXPECTED_BOX[0] + EXPECTED_BOX[2]) / 2, (EXPECTED_BOX[1] + EXPECTED_BOX[3]) / 2
+    _write_gt_1hz(tiny_dataset, [
+        [7, 70588, 0, 0, 1, 1, 100.0, *inside],  # frame 0 (70588.25 s): at the detection
+        [7, 70592, 0, 0, 1, 1, 160.0, 1000.0, 600.0],  # frame 100: far from it
+        [7, 70600, 0, 0, 0, 1, 170.0, *inside],  # frame 200: GPS not valid, not counted
+        [7, 70610, 0, 0, 1, 0, 80.0, *inside],  # frame 300: out of view, not counted
+    ])
+    report = tmp_path / "rank.json"
+    assert detect_cli.main(["rank", "--data", str(tiny_dataset), "--videos", "7", "--detections", str(out),
+                            "--out", str(report)]) == 0
+    assert "50.0 % of frames" in capsys.readouterr().out
+    figures = json.loads(report.read_text())
+    assert (figures["frames"], figures["found"], figures["top"]) == (2, 1, 1)
+    assert [b["frames"] for b in figures["bands"]] == [0, 1, 1, 0, 0]
+
+
+def test_rank_names_what_is_missing(tiny_dataset, tmp_path, capsys):
+    dets = tmp_path / "dets.csv"
+    dets.write_text("video,frame,x1,y1,x2,y2,score,class_id,p_target\n")
+    assert detect_cli.main(["rank", "--data", str(tiny_dataset), "--detections", str(dets)]) == 2
+    assert "gt_1hz.csv" in capsys.readouterr().err
+    assert detect_cli.main(["rank", "--data", str(tiny_dataset), "--detections", str(dets),
+                            "--margin-px", "nan"]) == 2
+    assert "--margin-px" in capsys.readouterr().err

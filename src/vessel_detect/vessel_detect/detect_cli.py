@@ -5,6 +5,8 @@
   classes, p_target the probability of being the vessel of interest).
 - ``recall``: recall of the vessel of interest on the hand-labelled frames (a hit: IoU >= 0.3 with a primary
   hand box) and the mean number of other detections per frame below the horizon.
+- ``rank``: on every frame with the vessel's GPS in view, whether a box and the most likely box lie at its GPS
+  point, by range (no hand labels: far frames count too).
 - ``export-labels``: YOLO training data from the vessel's GPS projected through the calibration (the paper's
   trick: no hand labelling).
 
@@ -38,7 +40,7 @@ from vessel_detect.dataset_detection import (
 from vessel_detect.detections_csv import read_detections_csv
 from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import build_detector, load_params_file
-from vessel_detect.recall import HIT_IOU, RecallResult, recall_at  # noqa: F401 - the recall command's core
+from vessel_detect.recall import GPS_MARGIN_PX, HIT_IOU, RecallResult, gps_ranking, recall_at  # noqa: F401
 
 # Box size of a vessel from |z_p| (full-resolution pixels): size = a / |z_p| + b.
 PAPER_BOX = ((3000.0, 50.0), (1700.0, 50.0))  # the paper's half-resolution formula, doubled
@@ -137,6 +139,47 @@ def cmd_recall(args: argparse.Namespace) -> int:
                                                   "results": [r.as_dict() for r in results]}, indent=2))
     return 0
 
+
+
+def gps_points(dataset, videos) -> dict[tuple[int, int], tuple[float, float, float]]:
+    """(video, frame) -> (x, y, range_m): the dataset's screen point of the vessel's GPS (``gt_1hz.csv``).
+
+    Frames whose whole second has valid GPS in view with a screen point; a frame takes the second it rounds to.
+    """
+    truth = {(g.video, round(g.stamp)): g for g in dataset.gt_1hz(videos)
+             if g.valid and g.in_view and math.isfinite(g.x_ref) and math.isfinite(g.y_ref)}
+    points = {}
+    for frame in dataset.frames(videos):
+        g = truth.get((frame.video, round(frame.stamp)))
+        if g is not None:
+            points[(frame.video, frame.frame)] = (g.x_ref, g.y_ref, g.dist_m)
+    return points
+
+
+def cmd_rank(args: argparse.Namespace) -> int:
+    """``rank``: how often the most likely box is at the vessel's GPS, on every frame with the GPS in view."""
+    if not (math.isfinite(args.margin_px) and args.margin_px >= 0):
+        raise DataError(f"--margin-px must be a number of pixels >= 0, got {args.margin_px}")
+    dataset = open_dataset(args.data)
+    videos = parse_video_spec(args.videos)
+    points = gps_points(dataset, videos)
+    if not points:
+        raise DataError(f"no frame of videos {args.videos} in {dataset.path} has the vessel's GPS in view with a "
+                        "screen point: the ranking needs gt_1hz.csv with valid, in_view, x_ref and y_ref")
+    result = gps_ranking(points, read_detections_csv(Path(args.detections)), args.margin_px)
+    print(f"the vessel of interest at its GPS, videos {args.videos}, detections {args.detections}: a box within "
+          f"{args.margin_px:g} px of the GPS point (gt_1hz.csv), and the box of highest p_target there")
+    print("     range m   frames   a box there   top box there")
+    for band in result.as_dict()["bands"]:
+        upper = f"{band['to_m']:.0f}" if band["to_m"] is not None else "..."
+        print(f"  {band['from_m']:5.0f}-{upper:<5}  {band['frames']:5d}   {band['found']:5d}         {band['top']:5d}")
+    total = sum(result.frames)
+    print(f"  all          {total:5d}   {sum(result.found):5d}         {sum(result.top):5d}  "
+          f"({100 * sum(result.top) / total:.1f} % of frames)")
+    if args.out:
+        _atomic_write(Path(args.out), json.dumps({"videos": args.videos, "detections": args.detections,
+                                                  **result.as_dict()}, indent=2))
+    return 0
 
 # ---------------------------------------------------------------------------------------------------- export
 def box_size_px(zp_abs: np.ndarray, model: tuple[tuple[float, float], tuple[float, float]]) -> tuple:
@@ -326,6 +369,17 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated score thresholds to report (a sweep)")
     recall.add_argument("--out", help="also write the figures as JSON")
     recall.set_defaults(func=cmd_recall)
+
+    rank = sub.add_parser("rank", help="how often the most likely box is the vessel, against its GPS (every frame "
+                          "with the GPS in view, by range; no hand labels)")
+    rank.add_argument("--data")
+    rank.add_argument("--videos", default="6-17")
+    rank.add_argument("--detections", required=True, help="a CSV from 'run'")
+    rank.add_argument("--margin-px", type=float, default=GPS_MARGIN_PX,
+                      help=f"a box is at the GPS point when the point lies within this many pixels of it "
+                           f"(default {GPS_MARGIN_PX:g}: the dataset's point is good to about that)")
+    rank.add_argument("--out", help="also write the figures as JSON")
+    rank.set_defaults(func=cmd_rank)
 
     export = sub.add_parser("export-labels", help="YOLO training data from the vessel's GPS (no hand labels)")
     export.add_argument("--data")
