@@ -269,6 +269,18 @@ def test_shipped_parameter_files_match_the_code_defaults():
     assert (root / "config" / "parts" / "gps_publisher.yaml").is_file()
 
 
+def test_fuser_settings_merge_the_all_nodes_block_parameter_by_parameter(tmp_path):
+    """As ROS does: a /** selection parameter stays when the fuser block sets another selection parameter."""
+    from vessel_track.fuser_settings import load_fuser_settings
+
+    params = tmp_path / "params.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    selection:\n      switch_hold_s: 3.0\n"
+                      "      switch_margin: 0.1\n"
+                      "fuser:\n  ros__parameters:\n    selection.switch_margin: 0.7\n")
+    selection = load_fuser_settings(params).selection
+    assert (selection.switch_hold_s, selection.switch_margin) == (3.0, 0.7)
+
+
 def test_gap_lengths_are_the_time_between_the_measurements_either_side():
     stamps = np.array([0.0, 4.0, 8.0, 12.0, 16.0, 20.0, 24.0])
     measured = np.array([True, False, True, False, False, False, True])

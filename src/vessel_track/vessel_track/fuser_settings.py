@@ -247,11 +247,15 @@ def flatten(params: Mapping[str, Any], prefix: str = "") -> dict:
 
 
 def load_fuser_settings(path: Path | None, node: str = "fuser") -> FuserSettings:
-    """Settings from the ``node`` (else ``/**``) block of a parameter YAML; defaults when ``path`` is None."""
+    """Settings from the ``/**`` and ``node`` blocks of a parameter YAML; defaults when ``path`` is None.
+
+    The blocks merge parameter by parameter, as ROS merges them: a ``/**`` ``selection.switch_hold_s`` stays when
+    the node's block sets another ``selection`` parameter.
+    """
     if path is None:
         return FuserSettings()
 
     merged: dict = {}
     for block in node_blocks(read_params_yaml(path), node):
-        merged.update(nest(block))
-    return FuserSettings.from_params(merged)
+        merged.update(flatten(block))
+    return FuserSettings.from_params(nest(merged))
