@@ -1,4 +1,4 @@
-"""Vectorised box geometry: IoU, intersection over own area, greedy class-aware NMS, nested-box suppression."""
+"""Vectorised box geometry: IoU, intersection over own area, points in boxes, class-aware NMS, nested boxes."""
 
 from __future__ import annotations
 
@@ -26,6 +26,14 @@ def box_iou(a_xyxy: np.ndarray, b_xyxy: np.ndarray) -> np.ndarray:
     union = box_areas(a_xyxy)[:, None] + box_areas(b_xyxy)[None, :] - inter
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+def boxes_containing(boxes_xyxy: np.ndarray, point, margin: float = 0.0) -> np.ndarray:
+    """``(N,)`` which boxes, each grown by ``margin`` on every side, contain the point ``(x, y)``."""
+    boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    x, y = point
+    return (boxes[:, 0] - margin <= x) & (x <= boxes[:, 2] + margin) & (boxes[:, 1] - margin <= y) & (
+        y <= boxes[:, 3] + margin)
 
 
 def intersection_over_first(a_xyxy: np.ndarray, b_xyxy: np.ndarray) -> np.ndarray:

@@ -140,7 +140,7 @@ def cmd_recall(args: argparse.Namespace) -> int:
     return 0
 
 
-
+# ---------------------------------------------------------------------------------------------------- rank
 def gps_points(dataset, videos) -> dict[tuple[int, int], tuple[float, float, float]]:
     """(video, frame) -> (x, y, range_m): the dataset's screen point of the vessel's GPS (``gt_1hz.csv``).
 
@@ -166,20 +166,20 @@ def cmd_rank(args: argparse.Namespace) -> int:
     if not points:
         raise DataError(f"no frame of videos {args.videos} in {dataset.path} has the vessel's GPS in view with a "
                         "screen point: the ranking needs gt_1hz.csv with valid, in_view, x_ref and y_ref")
-    result = gps_ranking(points, read_detections_csv(Path(args.detections)), args.margin_px)
+    summary = gps_ranking(points, read_detections_csv(Path(args.detections)), args.margin_px).as_dict()
     print(f"the vessel of interest at its GPS, videos {args.videos}, detections {args.detections}: a box within "
           f"{args.margin_px:g} px of the GPS point (gt_1hz.csv), and the box of highest p_target there")
     print("     range m   frames   a box there   top box there")
-    for band in result.as_dict()["bands"]:
+    for band in summary["bands"]:
         upper = f"{band['to_m']:.0f}" if band["to_m"] is not None else "..."
         print(f"  {band['from_m']:5.0f}-{upper:<5}  {band['frames']:5d}   {band['found']:5d}         {band['top']:5d}")
-    total = sum(result.frames)
-    print(f"  all          {total:5d}   {sum(result.found):5d}         {sum(result.top):5d}  "
-          f"({100 * sum(result.top) / total:.1f} % of frames)")
+    print(f"  all          {summary['frames']:5d}   {summary['found']:5d}         {summary['top']:5d}  "
+          f"({100 * summary['top_rate']:.1f} % of frames)")
     if args.out:
-        _atomic_write(Path(args.out), json.dumps({"videos": args.videos, "detections": args.detections,
-                                                  **result.as_dict()}, indent=2))
+        _atomic_write(Path(args.out), json.dumps({"videos": args.videos, "detections": args.detections, **summary},
+                                                 indent=2))
     return 0
+
 
 # ---------------------------------------------------------------------------------------------------- export
 def box_size_px(zp_abs: np.ndarray, model: tuple[tuple[float, float], tuple[float, float]]) -> tuple:

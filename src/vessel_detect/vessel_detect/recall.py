@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vessel_detect.box_ops import box_iou
+from vessel_detect.box_ops import box_iou, boxes_containing
 
 HIT_IOU = 0.3
 GPS_MARGIN_PX = 10.0  # the dataset's screen point of the GPS is good to about 10 px
@@ -151,8 +151,7 @@ def gps_ranking(
         boxes, scores = detections.get(key, (np.zeros((0, 4)), np.zeros(0)))
         if not len(boxes):
             continue
-        at_point = (boxes[:, 0] - margin_px <= x) & (x <= boxes[:, 2] + margin_px) & \
-                   (boxes[:, 1] - margin_px <= y) & (y <= boxes[:, 3] + margin_px)
+        at_point = boxes_containing(boxes, (x, y), margin_px)
         found[band] += int(at_point.any())
         top[band] += int(at_point[int(np.argmax(scores))])
     return GpsRanking(edges, frames, found, top, float(margin_px))

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vessel_common.errors import DataError
-from vessel_detect.box_ops import box_iou
+from vessel_detect.box_ops import box_iou, boxes_containing
 
 CLASS_NAMES = ("vessel_of_interest", "vessel")
 TARGET_CLASS, OTHER_CLASS = 0, 1
@@ -143,12 +143,6 @@ def project_gps(dataset, camera, frames, max_gap_s: float, water_levels=None) ->
     return out
 
 
-def _containing(boxes: np.ndarray, point, margin: float) -> np.ndarray:
-    x, y = point
-    return (boxes[:, 0] - margin <= x) & (x <= boxes[:, 2] + margin) & (boxes[:, 1] - margin <= y) & (
-        y <= boxes[:, 3] + margin)
-
-
 def _boxes_at_gps(projections, detections, prior: SizeModel, anchor: float) -> tuple[np.ndarray, np.ndarray]:
     """(1/|z_p|, (w, h)) of each frame's COCO box that contains the projected GPS, the one nearest ``prior``."""
     inv, sizes = [], []
@@ -158,7 +152,7 @@ def _boxes_at_gps(projections, detections, prior: SizeModel, anchor: float) -> t
         boxes, _ = detections.get((p.video, p.frame), (np.zeros((0, 4)), np.zeros(0)))
         if len(boxes) == 0:
             continue
-        hit = _containing(boxes, p.point, margin=3.0)
+        hit = boxes_containing(boxes, p.point, margin=3.0)
         if not hit.any():
             continue
         candidates = boxes[hit]
@@ -233,7 +227,7 @@ def frame_labels(projection: Projection, boxes: np.ndarray, scores: np.ndarray, 
             span = np.maximum(boxes[:, 2], expected[2]) - np.minimum(boxes[:, 0], expected[0])
             x_iou = np.clip(overlap, 0, None) / np.maximum(span, 1e-6)
             ok = (x_iou >= settings.match_x_iou) & _widths_agree(boxes, ew, settings)
-            ok &= _containing(boxes, projection.point, margin=max(3.0, 0.25 * eh))
+            ok &= boxes_containing(boxes, projection.point, margin=max(3.0, 0.25 * eh))
             if ok.any():
                 best = int(np.argmax(np.where(ok, x_iou, -1.0)))
                 target = np.array([boxes[best, 0], expected[1], boxes[best, 2], expected[3]])

@@ -133,6 +133,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
     model = TrainableYolox(init_model, CLASS_NAMES)
     optimiser = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
     average = WeightAverage(model, settings.ema_decay) if settings.ema_decay > 0 else None
+    kept = model if average is None else average.model  # the weights validated and returned
     band_top = band_top_px(camera, settings.band_margin_px)
     steps_per_epoch = max(1, math.ceil(len(labels) / settings.batch_size))
     started = time.monotonic()
@@ -170,8 +171,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
                 f"cls {mean[3]:.3f})  {entry['seconds']:.0f} s")
         if val_references and (epoch % settings.val_every == 0 or epoch == settings.epochs):
             model.eval()
-            scored = model if average is None else average.model
-            detector = band_detector(TorchDetectorModel(scored, settings.input_hw), camera, settings.val_score,
+            detector = band_detector(TorchDetectorModel(kept, settings.input_hw), camera, settings.val_score,
                                      settings.input_hw)
             validation = validate(detector, images, val_references)
             entry.update(val_recall=validation.frame_recall, val_top1=validation.top_rate, val_frames=validation.frames)
@@ -180,8 +180,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
         history.append(entry)
         log(line)
     model.eval()
-    final = model if average is None else average.model
-    return final, TrainResult(history, validation, time.monotonic() - started)
+    return kept, TrainResult(history, validation, time.monotonic() - started)
 
 
 def onnx_parity(model: TrainableYolox, onnx_path: Path, sample: np.ndarray) -> float:
