@@ -128,12 +128,28 @@ def test_band_and_tiles_follow_the_horizon_and_scale_with_the_frame(tmp_path):
     assert detector.band((1280, 720)) == (360.0, 720.0)
     assert detector.band((640, 360)) == (180.0, 360.0)
     windows = detector.windows((1280, 720))
-    assert windows[0][1] is False and (windows[0][0].y0, windows[0][0].y1) == (360, 720)  # the global pass
-    tiles = [w for w, is_tile in windows if is_tile]
+    assert windows[0].fixed_scale is False and (windows[0].window.y0, windows[0].window.y1) == (360, 720)
+    tiles = [run.window for run in windows if run.fixed_scale]
     assert all(w.x1 - w.x0 == 333 for w in tiles)
     assert min(w.y0 for w in tiles) == 360 and max(w.y1 for w in tiles) == 720
-    assert VesselDetector(model, DetectorConfig(mode="band"), 400.0).windows((1280, 720))[0][0].y0 == 360
+    assert VesselDetector(model, DetectorConfig(mode="band"), 400.0).windows((1280, 720))[0].window.y0 == 360
     assert len(VesselDetector(model, DetectorConfig(mode="full"), 400.0).windows((1280, 720))) == 1
+
+
+def test_the_far_strip_needs_band_mode_and_a_model_of_free_input_size(tmp_path):
+    fixed = _model(tmp_path, np.zeros((1, POINTS, 85), np.float32))
+    assert fixed.free_input_size is False
+    with pytest.raises(ModelError, match="far_scale 2 runs .* fixes its input at 416x416: set far_scale 0"):
+        VesselDetector(fixed, DetectorConfig(mode="band", far_scale=2.0), 400.0)
+    with pytest.raises(VesselError, match="far_scale works in mode band only"):
+        VesselDetector(fixed, DetectorConfig(mode="tiled", far_scale=2.0), 400.0)
+    for value in (0.5, float("nan"), 9.0):
+        with pytest.raises(VesselError, match="far_scale must be 0"):
+            DetectorConfig(mode="band", far_scale=value).validate()
+    with pytest.raises(ModelError, match="band_scale 0.75 runs the network at its own input size.*set band_scale 0"):
+        VesselDetector(fixed, DetectorConfig(mode="band", band_scale=0.75), 400.0)
+    with pytest.raises(VesselError, match="band_scale must be 0"):
+        DetectorConfig(mode="band", band_scale=0.1).validate()
 
 
 def test_detections_above_the_band_and_inside_masks_are_dropped(tmp_path):
@@ -142,7 +158,7 @@ def test_detections_above_the_band_and_inside_masks_are_dropped(tmp_path):
     config = DetectorConfig(tile_scales=(1.0,), global_pass=False, exclusion_polygons=())
     frame = np.zeros((720, 1280, 3), np.uint8)
     high = VesselDetector(_model(tmp_path, _yolox_output_with_boat(200, 20, 40, 20)), config, 400.0)
-    assert {(w.y0, w.y1) for w, _ in high.windows((1280, 720))} == {(304, 720)}
+    assert {(run.window.y0, run.window.y1) for run in high.windows((1280, 720))} == {(304, 720)}
     assert len(high.detect(frame)) == 0  # frame y 314-334: its bottom is above the band top (360)
     low = VesselDetector(_model(tmp_path, _yolox_output_with_boat(200, 200, 40, 20), "b.onnx"), config, 400.0)
     kept = low.detect(frame)

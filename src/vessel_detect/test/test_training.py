@@ -337,6 +337,39 @@ def test_smoke_training_exports_an_onnx_model_that_matches_pytorch(tiny_onnx, tm
     assert np.all(detections.p_target <= detections.scores + 1e-6)
 
 
+def test_the_exported_model_runs_at_any_size_and_the_detector_zooms_the_far_strip(tiny_onnx, tmp_path):
+    from vessel_detect.detector import DetectorConfig, OnnxModel, VesselDetector
+    from vessel_detect.training.model import TrainableYolox, export_onnx, record_input_size
+
+    out = tmp_path / "free.onnx"
+    export_onnx(TrainableYolox(tiny_onnx, ("vessel_of_interest", "vessel"), init_class=1), out, (352, 1280))
+    out.with_suffix(".names").write_text("vessel_of_interest\nvessel\n")
+    model = OnnxModel(out, intra_op_threads=1)
+    assert model.free_input_size and model.input_hw == (352, 1280)
+    config = DetectorConfig(mode="band", classes=("vessel_of_interest", "vessel"), far_scale=2.0,
+                            far_above_horizon_px=24.0, far_rows_px=48.0, score_threshold=0.0)
+    detector = VesselDetector(model, config, horizon_y=400.0)
+    band, far = detector.windows((1280, 720))
+    assert (band.window.y0, band.window.y1, band.input_hw) == (360, 720, (352, 1280))
+    assert (far.window.y0, far.window.y1, far.input_hw, far.priority) == (376, 424, (96, 2560), 0)
+    assert detector.far_strip((640, 360)) == (188.0, 212.0)
+    frame = np.random.default_rng(0).integers(0, 255, (720, 1280, 3), dtype=np.uint8)
+    detections = detector.detect(frame)
+    assert len(detections) > 0 and np.all(np.isfinite(detections.boxes_xyxy))
+    smaller = VesselDetector(model, DetectorConfig(mode="band", classes=config.classes, band_scale=0.5), 400.0)
+    (band,) = smaller.windows((1280, 720))
+    assert band.fixed_scale and band.window.scale == 0.5 and band.input_hw == (192, 640)
+    assert np.all(smaller.detect(frame).boxes_xyxy[:, 3] <= 720)
+    # A model exported at a fixed size is freed in place; its usual size stays what it was.
+    fixed = tmp_path / "fixed.onnx"
+    fixed.write_bytes(tiny_onnx.read_bytes())
+    fixed.with_suffix(".names").write_text("a\nb\nc\n")
+    assert OnnxModel(fixed).free_input_size is False
+    record_input_size(fixed, (64, 128))
+    freed = OnnxModel(fixed)
+    assert freed.free_input_size and freed.input_hw == (64, 128)
+
+
 def test_the_same_seed_gives_the_same_training(tiny_onnx):
     from vessel_detect.training.trainer import train
 

@@ -11,12 +11,17 @@ Modes (``DetectorConfig.mode``):
   optionally the whole band in one pass (``global_pass``) for boats too large for a tile. Detections of all
   windows are merged (see :mod:`vessel_detect.tiling`).
 
+In ``band`` mode a second, zoomed run can cover the strip just below the horizon (``far_scale``), where a boat
+a few hundred metres out is a dozen pixels wide; its boxes come first in the merge. The network then runs at the
+strip's own size, so this needs a model whose input height and width are free (as ``detect train`` exports).
+
 Then boxes whose bottom lies above the band top (the sky, the far shore) and boxes mostly inside a static
 exclusion mask are dropped. Boxes come back in full-image pixels.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -143,6 +148,10 @@ class DetectorConfig:
     tile_overlap_px: int = 96
     tile_strip_px: float = 0.0
     global_pass: bool = True
+    band_scale: float = 0.0
+    far_scale: float = 0.0
+    far_above_horizon_px: float = 64.0
+    far_rows_px: float = 128.0
     exclusion_polygons: tuple[str, ...] = DEFAULT_EXCLUSION_POLYGONS
     mask_max_inside: float = 0.5
     cut_edge_tolerance_px: float = 3.0
@@ -162,6 +171,14 @@ class DetectorConfig:
             (all(0.05 <= s <= 8.0 for s in self.tile_scales), "tile_scales must each be in [0.05, 8]"),
             (self.tile_overlap_px >= 0, "tile_overlap_px must be >= 0"),
             (self.tile_strip_px >= 0, "tile_strip_px must be >= 0 (0: the whole band)"),
+            (self.band_scale == 0.0 or 0.25 <= self.band_scale <= 4.0, "band_scale must be 0 (fit) or in [0.25, 4]"),
+            (self.band_scale == 0.0 or self.mode == "band",
+             f"band_scale works in mode band only (mode is '{self.mode}'): set band_scale 0 or mode band"),
+            (self.far_scale == 0.0 or 1.0 <= self.far_scale <= 4.0, "far_scale must be 0 (off) or in [1, 4]"),
+            (self.far_scale == 0.0 or self.mode == "band",
+             f"far_scale works in mode band only (mode is '{self.mode}'): set far_scale 0 or mode band"),
+            (self.far_above_horizon_px >= 0, "far_above_horizon_px must be >= 0"),
+            (self.far_rows_px >= 8, "far_rows_px must be >= 8"),
             (0.0 <= self.mask_max_inside <= 1.0, "mask_max_inside must be in [0, 1]"),
             (len(self.classes) > 0, "classes must name at least one class (e.g. ['boat'])"),
         ]
@@ -262,8 +279,11 @@ class OnnxModel:
                 f"model {self.path} input '{model_input.name}' is {model_input.type}: the detector feeds float32 "
                 "pixels 0-255"
             )
-        height = shape[2] if isinstance(shape[2], int) and shape[2] > 0 else int(input_size[1])
-        width = shape[3] if isinstance(shape[3], int) and shape[3] > 0 else int(input_size[0])
+        fixed = [isinstance(side, int) and side > 0 for side in shape[2:]]
+        self.free_input_size = not any(fixed)
+        nominal_wh = _nominal_input_size(self.session, self.path) or (int(input_size[0]), int(input_size[1]))
+        height = shape[2] if fixed[0] else nominal_wh[1]
+        width = shape[3] if fixed[1] else nominal_wh[0]
         self.input_hw = (int(height), int(width))
         self.output_name = self.session.get_outputs()[0].name
         # One dry run: checks the model runs at all and gives the real output shape for dynamic models.
@@ -312,6 +332,29 @@ class OnnxModel:
     def run(self, tensor: np.ndarray) -> np.ndarray:
         """Run the network on one ``(1, 3, H, W)`` float32 tensor; return its first output."""
         return self.session.run([self.output_name], {self.input_name: tensor})[0]
+
+
+INPUT_SIZE_METADATA_KEY = "input_size"
+"""ONNX metadata key of a free-size model's usual input, ``WIDTHxHEIGHT`` (what ``detect train`` writes)."""
+
+
+def _nominal_input_size(session, path: Path) -> tuple[int, int] | None:
+    """The ``(width, height)`` a free-size model was trained for, from its metadata; None when not recorded."""
+    text = session.get_modelmeta().custom_metadata_map.get(INPUT_SIZE_METADATA_KEY, "")
+    if not text:
+        return None
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise ModelError(
+            f"model {path} metadata {INPUT_SIZE_METADATA_KEY}='{text}' is not WIDTHxHEIGHT (e.g. 1280x352): "
+            "re-export the model with ./vessel detect train"
+        ) from None
+    if width <= 0 or height <= 0 or width % 32 or height % 32:
+        raise ModelError(
+            f"model {path} metadata {INPUT_SIZE_METADATA_KEY}='{text}' must be positive multiples of 32"
+        )
+    return width, height
 
 
 def _safe_sha(path: Path) -> str:
@@ -382,6 +425,25 @@ def letterbox(
     return tensor, float(scale)
 
 
+@dataclass(frozen=True)
+class NetworkRun:
+    """One network run on a frame.
+
+    ``window`` is the source rectangle; ``fixed_scale`` shows it at ``window.scale`` (tiles and the far strip)
+    instead of fitting it whole; ``input_hw`` is the network input; boxes of runs with a lower ``priority`` are
+    taken first when the runs' detections are merged.
+    """
+
+    window: Window
+    fixed_scale: bool
+    input_hw: tuple[int, int]
+    priority: int = 1
+
+
+def _multiple_of(value: float, step: int) -> int:
+    return max(step, int(math.ceil(value / step - 1e-9)) * step)
+
+
 def horizon_band_top(camera_model, image_wh: tuple[int, int] | None = None, samples: int = 65) -> float | None:
     """Highest screen y of the horizon across the image width (the band starts there), None if undefined.
 
@@ -435,8 +497,16 @@ class VesselDetector:
                 f"({', '.join(model.class_names[:12])}); set it to the model's vessel-of-interest class or ''"
             )
         self.target_index = model.class_names.index(self.config.target_class) if self.config.target_class else None
+        for name in ("band_scale", "far_scale"):
+            if getattr(self.config, name) > 0 and not model.free_input_size:
+                height, width = model.input_hw
+                raise ModelError(
+                    f"{name} {getattr(self.config, name):g} runs the network at its own input size, but model "
+                    f"{model.path} fixes its input at {width}x{height}: set {name} 0, or use a model exported with "
+                    "a free input height and width (./vessel detect train exports one)"
+                )
         self.mask = ExclusionMask(list(self.config.exclusion_polygons), self.reference_wh)
-        self._plans: dict[tuple[int, int], list[tuple[Window, bool]]] = {}
+        self._plans: dict[tuple[int, int], list[NetworkRun]] = {}
         self.appearance = None  # an appearance_model.AppearanceModel rescoring the boxes (set by build_detector)
         self.appearance_min_probability = 0.0
         self.appearance_camera = None  # the CameraModel its geometry features need (set by build_detector)
@@ -462,33 +532,55 @@ class VesselDetector:
             top, bottom = 0.0, float(height)
         return top, bottom
 
-    def windows(self, image_wh: tuple[int, int]) -> list[tuple[Window, bool]]:
-        """The windows run on an image of ``image_wh``: ``(window, is_tile)`` pairs (cached per size)."""
+    def windows(self, image_wh: tuple[int, int]) -> list[NetworkRun]:
+        """The network runs on an image of ``image_wh`` (cached per size)."""
         key = (int(image_wh[0]), int(image_wh[1]))
         if key not in self._plans:
             self._plans[key] = self._plan(key)
         return self._plans[key]
 
-    def _plan(self, image_wh: tuple[int, int]) -> list[tuple[Window, bool]]:
+    def far_strip(self, image_wh: tuple[int, int]) -> tuple[float, float] | None:
+        """The rows ``(top, bottom)`` of the zoomed far strip in an image of ``image_wh``; None when off."""
+        if self.config.far_scale <= 0 or self.config.mode != "band" or self.horizon_y is None:
+            return None
+        height = image_wh[1]
+        sy = height / self.reference_wh[1]
+        top = max(0.0, (self.horizon_y - self.config.far_above_horizon_px) * sy)
+        bottom = min(float(height), top + self.config.far_rows_px * sy)
+        return (top, bottom) if bottom > top + 1 else None
+
+    def _plan(self, image_wh: tuple[int, int]) -> list[NetworkRun]:
         width, height = image_wh
         config = self.config
         net_wh = (self.model.input_hw[1], self.model.input_hw[0])
         if config.mode == "full":
-            return [(_whole_window(0, 0, width, height, net_wh, image_wh), False)]
+            return [NetworkRun(_whole_window(0, 0, width, height, net_wh, image_wh), False, self.model.input_hw)]
         top, bottom = self.band(image_wh)
         itop, ibottom = int(np.floor(top)), int(np.ceil(bottom))
-        band_window = _whole_window(0, itop, width, ibottom, net_wh, image_wh)
+        band_run = NetworkRun(_whole_window(0, itop, width, ibottom, net_wh, image_wh), False, self.model.input_hw)
+        if config.mode == "band" and config.band_scale > 0:
+            scale = config.band_scale
+            input_hw = (_multiple_of((ibottom - itop) * scale, 32), _multiple_of(width * scale, 32))
+            window = Window(0, itop, width, ibottom, float(scale), (False, itop > 0, False, ibottom < height))
+            band_run = NetworkRun(window, True, input_hw)
         if config.mode == "band":
-            return [(band_window, False)]
-        plan: list[tuple[Window, bool]] = []
+            strip = self.far_strip(image_wh)
+            if strip is None:
+                return [band_run]
+            stop, sbottom = int(np.floor(strip[0])), int(np.ceil(strip[1]))
+            scale = config.far_scale
+            input_hw = (_multiple_of((sbottom - stop) * scale, 32), _multiple_of(width * scale, 32))
+            window = Window(0, stop, width, sbottom, float(scale), (False, stop > 0, False, sbottom < height))
+            return [band_run, NetworkRun(window, True, input_hw, priority=0)]
+        plan: list[NetworkRun] = []
         if config.global_pass:
-            plan.append((band_window, False))
+            plan.append(band_run)
         strip_bottom = bottom
         if config.tile_strip_px > 0:
             strip_bottom = min(bottom, top + config.tile_strip_px * height / self.reference_wh[1])
         for scale in config.tile_scales:
             plan += [
-                (window, True)
+                NetworkRun(window, True, self.model.input_hw)
                 for window in tile_windows(
                     (0, top, width, strip_bottom), image_wh, net_wh, scale, config.tile_overlap_px
                 )
@@ -505,13 +597,14 @@ class VesselDetector:
         self.last_window_count = len(plan)
         parts = []
         windows = []
-        for index, (window, is_tile) in enumerate(plan):
+        for index, run in enumerate(plan):
+            window = run.window
             windows.append(window)
             crop = image[window.y0 : window.y1, window.x0 : window.x1]
-            tensor, scale = letterbox(crop, self.model.input_hw, window.scale if is_tile else None)
+            tensor, scale = letterbox(crop, run.input_hw, window.scale if run.fixed_scale else None)
             output = self.model.run(tensor)
             candidates = decode(
-                output, self.model.layout, self.model.input_hw, self.class_indices,
+                output, self.model.layout, run.input_hw, self.class_indices,
                 self.config.score_threshold, self.model.strides, self.target_index,
             )
             if len(candidates) == 0:
@@ -529,7 +622,8 @@ class VesselDetector:
         merged = WindowDetections.concatenate(parts)
         if len(plan) > 1:
             merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold,
-                                   class_agnostic=self.config.class_agnostic_nms)
+                                   class_agnostic=self.config.class_agnostic_nms,
+                                   priorities=[run.priority for run in plan])
         detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names,
                                 merged.target_scores)
         detections = self._filter(detections, (width, height))

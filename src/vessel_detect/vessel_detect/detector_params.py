@@ -91,6 +91,16 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "band); the global pass covers the rest.", float_range=(0.0, 20000.0), read_only=True),
     ParamSpec("global_pass", True, "Tiled mode: also run the whole band letterboxed once, for boats too "
               "large for a tile.", read_only=True),
+    ParamSpec("band_scale", 0.0, "Band mode: network pixels per image pixel of the band (0: the band fitted "
+              "into the model's usual input; a smaller value runs faster and shows boats smaller). Needs a model with "
+              "a free input size.", float_range=(0.0, 4.0), read_only=True),
+    ParamSpec("far_scale", 0.0, "Band mode: also run the strip just below the horizon at this many network "
+              "pixels per image pixel, for boats a few pixels tall (0: off; 1-4). Needs a model with a free input "
+              "size, as ./vessel detect train exports.", float_range=(0.0, 4.0), read_only=True),
+    ParamSpec("far_above_horizon_px", 64.0, "The far strip starts this far above the horizon, pixels of the "
+              "calibrated image size.", float_range=(0.0, 2000.0), read_only=True),
+    ParamSpec("far_rows_px", 128.0, "Height of the far strip, pixels of the calibrated image size.",
+              float_range=(8.0, 2000.0), read_only=True),
     ParamSpec("exclusion_polygons", list(DEFAULT_EXCLUSION_POLYGONS), "Static exclusion masks, one polygon "
               "per string 'x,y x,y x,y ...' in pixels of the calibrated image size (default: the challenge "
               "camera's mooring post); [''] for none.", read_only=True),
@@ -208,6 +218,10 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
         tile_overlap_px=int(values["tile_overlap_px"]),
         tile_strip_px=float(values["tile_strip_px"]),
         global_pass=bool(values["global_pass"]),
+        band_scale=float(values["band_scale"]),
+        far_scale=float(values["far_scale"]),
+        far_above_horizon_px=float(values["far_above_horizon_px"]),
+        far_rows_px=float(values["far_rows_px"]),
         exclusion_polygons=polygons,
         mask_max_inside=float(values["mask_max_inside"]),
         target_class=str(values["target_class"]).strip(),

@@ -32,6 +32,18 @@ def test_summary_ms_gives_median_and_p95_in_milliseconds():
     assert empty["n"] == 0 and math.isnan(empty["p50"])
 
 
+def test_the_detector_bench_times_other_modes_without_the_band_only_options():
+    from vessel_detect.detector_params import default_values, detector_config
+    from vessel_tools.bench_detector import values_in_mode
+
+    values = dict(default_values(), mode="band", far_scale=1.5, band_scale=0.75, model_path="m.onnx")
+    assert values_in_mode(values, "band")["far_scale"] == 1.5
+    for mode in ("full", "tiled"):
+        switched = values_in_mode(values, mode)
+        assert switched["mode"] == mode and switched["model_path"] == "m.onnx"
+        assert detector_config(switched).far_scale == 0.0 and detector_config(switched).band_scale == 0.0
+
+
 def test_node_parameters_follow_the_ros_rules_of_parameter_files(tmp_path):
     first = tmp_path / "graph.yaml"
     first.write_text(yaml.safe_dump({

@@ -158,10 +158,42 @@ class ExportHead(nn.Module):
 
 
 def export_onnx(model: TrainableYolox, path: str | Path, input_hw: tuple[int, int]) -> None:
-    """Write the model as ONNX (opset 17, batch 1, fixed ``input_hw``), input ``images``, output ``output``."""
+    """Write the model as ONNX (opset 17, batch 1), input ``images``, output ``output``.
+
+    The input height and width are left free (the network is convolutional to its output), with ``input_hw``
+    recorded as the usual size; the detector runs it at that size, and at other sizes for the far strip.
+    """
     head = ExportHead(model).eval()
     dummy = torch.full((1, 3, *input_hw), 114.0)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         torch.onnx.export(head, (dummy,), str(path), input_names=["images"], output_names=["output"],
-                          opset_version=17, dynamo=False)
+                          opset_version=17, dynamo=False,
+                          dynamic_axes={"images": {2: "height", 3: "width"}, "output": {1: "anchors"}})
+    record_input_size(path, input_hw)
+
+
+def record_input_size(path: str | Path, input_hw: tuple[int, int]) -> None:
+    """Free the input height and width of the ONNX file at ``path`` and record ``input_hw`` as its usual size.
+
+    Also frees a model exported with a fixed size, whose graph computes its reshapes from the input's shape:
+    the weights and operators stay as they are. The detector reads the size back (``input_size`` metadata).
+    """
+    import onnx
+
+    from vessel_detect.detector import INPUT_SIZE_METADATA_KEY
+
+    graph = onnx.load(str(path))
+    dims = graph.graph.input[0].type.tensor_type.shape.dim
+    dims[2].dim_param, dims[3].dim_param = "height", "width"
+    output_dims = graph.graph.output[0].type.tensor_type.shape.dim
+    if len(output_dims) == 3:
+        output_dims[1].dim_param = "anchors"
+    del graph.graph.value_info[:]
+    kept = [p for p in graph.metadata_props if p.key != INPUT_SIZE_METADATA_KEY]
+    del graph.metadata_props[:]
+    graph.metadata_props.extend(kept)
+    entry = graph.metadata_props.add()
+    entry.key, entry.value = INPUT_SIZE_METADATA_KEY, f"{int(input_hw[1])}x{int(input_hw[0])}"
+    onnx.checker.check_model(graph)
+    onnx.save(graph, str(path))

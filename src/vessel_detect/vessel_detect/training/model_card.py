@@ -20,9 +20,11 @@ def model_card(model_path: Path, summary: dict) -> str:
         "`vessel_of_interest` (the boat that carried the GPS logger) and `vessel` (every other boat).",
         "",
         "## Interface",
-        f"- input `images`, float32 `[1, 3, {settings.get('input_hw', ['?', '?'])[0]}, "
-        f"{settings.get('input_hw', ['?', '?'])[1]}]`, BGR 0-255, no normalisation: the band below the horizon "
-        "(the detector's `band` mode) letterboxed at the top-left, padding 114;",
+        "- input `images`, float32 `[1, 3, height, width]`, usually "
+        f"`[1, 3, {settings.get('input_hw', ['?', '?'])[0]}, {settings.get('input_hw', ['?', '?'])[1]}]` "
+        "(metadata `input_size`), BGR 0-255, no normalisation: the band "
+        "below the horizon (the detector's `band` mode) letterboxed at the top-left, padding 114; any multiple of 32 "
+        "runs, as the zoomed far strip (`far_scale`) does;",
         "- output `output`, `[1, anchors, 7]`: YOLOX raw layout (grid-relative x, y, log w, log h; sigmoid "
         "objectness; sigmoid class scores), strides 8, 16, 32;",
         f"- class names in `{model_path.with_suffix('.names').name}`; score = objectness x class score; "
