@@ -152,6 +152,22 @@ def test_the_far_strip_needs_band_mode_and_a_model_of_free_input_size(tmp_path):
         DetectorConfig(mode="band", band_scale=0.1).validate()
 
 
+def test_the_usual_input_size_of_a_free_size_model_comes_from_its_metadata():
+    from types import SimpleNamespace
+
+    from vessel_detect.detector import _nominal_input_size
+
+    def session(metadata):
+        return SimpleNamespace(get_modelmeta=lambda: SimpleNamespace(custom_metadata_map=metadata))
+
+    assert _nominal_input_size(session({"input_size": "1280x352"}), "m.onnx") == (1280, 352)
+    assert _nominal_input_size(session({}), "m.onnx") is None
+    with pytest.raises(ModelError, match="input_size='wide' is not WIDTHxHEIGHT.*re-export"):
+        _nominal_input_size(session({"input_size": "wide"}), "m.onnx")
+    with pytest.raises(ModelError, match="must be positive multiples of 32"):
+        _nominal_input_size(session({"input_size": "1280x350"}), "m.onnx")
+
+
 def test_detections_above_the_band_and_inside_masks_are_dropped(tmp_path):
     # Tiles at scale 1 are 416 px high: with the band at 360-720 they start at y = 304, above the band. A
     # constant network output puts the same box in every tile.
