@@ -444,6 +444,14 @@ def _multiple_of(value: float, step: int) -> int:
     return max(step, int(math.ceil(value / step - 1e-9)) * step)
 
 
+def _strip_run(top: int, bottom: int, image_wh: tuple[int, int], scale: float, priority: int = 1) -> NetworkRun:
+    """The full-width rows ``[top, bottom)`` shown at ``scale``, the network input sized to them (strides of 32)."""
+    width, height = image_wh
+    input_hw = (_multiple_of((bottom - top) * scale, 32), _multiple_of(width * scale, 32))
+    window = Window(0, top, width, bottom, float(scale), (False, top > 0, False, bottom < height))
+    return NetworkRun(window, True, input_hw, priority)
+
+
 def horizon_band_top(camera_model, image_wh: tuple[int, int] | None = None, samples: int = 65) -> float | None:
     """Highest screen y of the horizon across the image width (the band starts there), None if undefined.
 
@@ -559,19 +567,13 @@ class VesselDetector:
         itop, ibottom = int(np.floor(top)), int(np.ceil(bottom))
         band_run = NetworkRun(_whole_window(0, itop, width, ibottom, net_wh, image_wh), False, self.model.input_hw)
         if config.mode == "band" and config.band_scale > 0:
-            scale = config.band_scale
-            input_hw = (_multiple_of((ibottom - itop) * scale, 32), _multiple_of(width * scale, 32))
-            window = Window(0, itop, width, ibottom, float(scale), (False, itop > 0, False, ibottom < height))
-            band_run = NetworkRun(window, True, input_hw)
+            band_run = _strip_run(itop, ibottom, image_wh, config.band_scale)
         if config.mode == "band":
             strip = self.far_strip(image_wh)
             if strip is None:
                 return [band_run]
-            stop, sbottom = int(np.floor(strip[0])), int(np.ceil(strip[1]))
-            scale = config.far_scale
-            input_hw = (_multiple_of((sbottom - stop) * scale, 32), _multiple_of(width * scale, 32))
-            window = Window(0, stop, width, sbottom, float(scale), (False, stop > 0, False, sbottom < height))
-            return [band_run, NetworkRun(window, True, input_hw, priority=0)]
+            far_run = _strip_run(int(np.floor(strip[0])), int(np.ceil(strip[1])), image_wh, config.far_scale, 0)
+            return [band_run, far_run]
         plan: list[NetworkRun] = []
         if config.global_pass:
             plan.append(band_run)
