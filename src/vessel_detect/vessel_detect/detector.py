@@ -46,6 +46,8 @@ from vessel_detect.tiling import (
 
 LETTERBOX_PAD_VALUE = 114
 MODES = ("full", "band", "tiled")
+BAND_ONLY_OPTIONS = ("band_scale", "far_scale")
+"""Options of ``band`` mode that run the network at their own input size (0: off); no other mode takes them."""
 CHALLENGE_HORIZON_Y = 418.0
 """Screen y of the horizon of the challenge camera (1280x720), for when no calibration is at hand."""
 
@@ -172,11 +174,10 @@ class DetectorConfig:
             (self.tile_overlap_px >= 0, "tile_overlap_px must be >= 0"),
             (self.tile_strip_px >= 0, "tile_strip_px must be >= 0 (0: the whole band)"),
             (self.band_scale == 0.0 or 0.25 <= self.band_scale <= 4.0, "band_scale must be 0 (fit) or in [0.25, 4]"),
-            (self.band_scale == 0.0 or self.mode == "band",
-             f"band_scale works in mode band only (mode is '{self.mode}'): set band_scale 0 or mode band"),
             (self.far_scale == 0.0 or 1.0 <= self.far_scale <= 4.0, "far_scale must be 0 (off) or in [1, 4]"),
-            (self.far_scale == 0.0 or self.mode == "band",
-             f"far_scale works in mode band only (mode is '{self.mode}'): set far_scale 0 or mode band"),
+            *((getattr(self, name) == 0.0 or self.mode == "band",
+               f"{name} works in mode band only (mode is '{self.mode}'): set {name} 0 or mode band")
+              for name in BAND_ONLY_OPTIONS),
             (self.far_above_horizon_px >= 0, "far_above_horizon_px must be >= 0"),
             (self.far_rows_px >= 8, "far_rows_px must be >= 8"),
             (0.0 <= self.mask_max_inside <= 1.0, "mask_max_inside must be in [0, 1]"),
@@ -505,7 +506,7 @@ class VesselDetector:
                 f"({', '.join(model.class_names[:12])}); set it to the model's vessel-of-interest class or ''"
             )
         self.target_index = model.class_names.index(self.config.target_class) if self.config.target_class else None
-        for name in ("band_scale", "far_scale"):
+        for name in BAND_ONLY_OPTIONS:
             if getattr(self.config, name) > 0 and not model.free_input_size:
                 height, width = model.input_hw
                 raise ModelError(
@@ -565,9 +566,10 @@ class VesselDetector:
             return [NetworkRun(_whole_window(0, 0, width, height, net_wh, image_wh), False, self.model.input_hw)]
         top, bottom = self.band(image_wh)
         itop, ibottom = int(np.floor(top)), int(np.ceil(bottom))
-        band_run = NetworkRun(_whole_window(0, itop, width, ibottom, net_wh, image_wh), False, self.model.input_hw)
         if config.mode == "band" and config.band_scale > 0:
             band_run = _strip_run(itop, ibottom, image_wh, config.band_scale)
+        else:
+            band_run = NetworkRun(_whole_window(0, itop, width, ibottom, net_wh, image_wh), False, self.model.input_hw)
         if config.mode == "band":
             strip = self.far_strip(image_wh)
             if strip is None:

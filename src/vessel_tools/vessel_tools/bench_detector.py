@@ -37,6 +37,7 @@ from vessel_calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, repo_file, repo_root
+from vessel_detect.detector import BAND_ONLY_OPTIONS
 from vessel_detect.detector_params import build_detector, load_params_files, open_model
 
 MODES = ("full", "band", "tiled")
@@ -269,14 +270,11 @@ def run(args: argparse.Namespace) -> dict:
     return result
 
 
-BAND_ONLY_PARAMETERS = {"band_scale": 0.0, "far_scale": 0.0}
-
-
 def values_in_mode(values: Mapping[str, Any], mode: str) -> dict[str, Any]:
     """The detector parameters with ``mode`` set; the band-only options are turned off in the other modes."""
     switched = dict(values, mode=mode)
     if mode != "band":
-        switched.update(BAND_ONLY_PARAMETERS)
+        switched.update(dict.fromkeys(BAND_ONLY_OPTIONS, 0.0))
     return switched
 
 
