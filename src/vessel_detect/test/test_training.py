@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -347,7 +348,8 @@ def test_the_exported_model_runs_at_any_size_and_the_detector_zooms_the_far_stri
     model = OnnxModel(out, intra_op_threads=1)
     assert model.free_input_size and model.input_hw == (352, 1280)
     config = DetectorConfig(mode="band", classes=("vessel_of_interest", "vessel"), far_scale=2.0,
-                            far_above_horizon_px=24.0, far_rows_px=48.0, score_threshold=0.0)
+                            far_above_horizon_px=24.0, far_rows_px=48.0, score_threshold=0.0,
+                            target_class="vessel_of_interest")
     detector = VesselDetector(model, config, horizon_y=400.0)
     band, far = detector.windows((1280, 720))
     assert (band.window.y0, band.window.y1, band.input_hw) == (360, 720, (352, 1280))
@@ -356,6 +358,11 @@ def test_the_exported_model_runs_at_any_size_and_the_detector_zooms_the_far_stri
     frame = np.random.default_rng(0).integers(0, 255, (720, 1280, 3), dtype=np.uint8)
     detections = detector.detect(frame)
     assert len(detections) > 0 and np.all(np.isfinite(detections.boxes_xyxy))
+    own = VesselDetector(model, replace(config, far_p_target="strip"), horizon_y=400.0).detect(frame)
+    assert np.all(np.isfinite(detections.p_target)) and np.array_equal(own.boxes_xyxy, detections.boxes_xyxy)
+    assert np.all(detections.p_target <= own.p_target) and np.any(detections.p_target < own.p_target)
+    shared = VesselDetector(model, replace(config, target_elsewhere_weight=0.5), horizon_y=400.0).detect(frame)
+    assert shared.p_target == pytest.approx(detections.p_target / (detections.p_target.sum() + 0.5), rel=1e-6)
     smaller = VesselDetector(model, DetectorConfig(mode="band", classes=config.classes, band_scale=0.5), 400.0)
     (band,) = smaller.windows((1280, 720))
     assert band.fixed_scale and band.window.scale == 0.5 and band.input_hw == (192, 640)
@@ -412,7 +419,6 @@ def test_the_weight_average_follows_the_weights_with_its_ramped_decay():
 
 
 def test_training_with_a_weight_average_returns_and_exports_the_average(tiny_onnx, tmp_path):
-    from dataclasses import replace
 
     from vessel_detect.detector import letterbox
     from vessel_detect.training.trainer import save_model, train

@@ -14,6 +14,11 @@ Modes (``DetectorConfig.mode``):
 In ``band`` mode a second, zoomed run can cover the strip just below the horizon (``far_scale``), where a boat
 a few hundred metres out is a dozen pixels wide; its boxes come first in the merge. The network then runs at the
 strip's own size, so this needs a model whose input height and width are free (as ``detect train`` exports).
+A zoomed far boat looks like the close-ups of the vessel of interest the model was trained on, whichever boat it is,
+so by default (``far_p_target: min``) a strip box's ``p_target`` is at most that of the band's box of the same boat.
+
+``target_elsewhere_weight`` (0: off) divides each box's ``p_target`` by the frame's sum plus this weight: there is
+at most one vessel of interest, so a small ``p_target`` far above every other box's in its frame still names it.
 
 Then boxes whose bottom lies above the band top (the sky, the far shore) and boxes mostly inside a static
 exclusion mask are dropped. Boxes come back in full-image pixels.
@@ -31,6 +36,7 @@ import numpy as np
 
 from vessel_common.errors import ModelError, VesselError
 from vessel_detect.appearance_model import rescore_detections
+from vessel_detect.box_ops import box_iou
 from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
 from vessel_detect.image_codec import ImageError
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
@@ -47,6 +53,10 @@ from vessel_detect.tiling import (
 LETTERBOX_PAD_VALUE = 114
 MODES = ("full", "band", "tiled")
 BAND_ONLY_OPTIONS = ("band_scale", "far_scale")
+FAR_P_TARGET = ("min", "strip")
+"""How a far-strip box's p_target is set: the lower of its own and the band's box of the same boat, or its own."""
+FAR_BAND_MATCH_IOU = 0.3
+"""IoU from which a band box is taken for the same boat as a far-strip box."""
 """Options of ``band`` mode that run the network at their own input size (0: off); no other mode takes them."""
 CHALLENGE_HORIZON_Y = 418.0
 """Screen y of the horizon of the challenge camera (1280x720), for when no calibration is at hand."""
@@ -154,6 +164,8 @@ class DetectorConfig:
     far_scale: float = 0.0
     far_above_horizon_px: float = 64.0
     far_rows_px: float = 128.0
+    far_p_target: str = "min"
+    target_elsewhere_weight: float = 0.0
     exclusion_polygons: tuple[str, ...] = DEFAULT_EXCLUSION_POLYGONS
     mask_max_inside: float = 0.5
     cut_edge_tolerance_px: float = 3.0
@@ -180,6 +192,10 @@ class DetectorConfig:
               for name in BAND_ONLY_OPTIONS),
             (self.far_above_horizon_px >= 0, "far_above_horizon_px must be >= 0"),
             (self.far_rows_px >= 8, "far_rows_px must be >= 8"),
+            (self.far_p_target in FAR_P_TARGET,
+             f"far_p_target '{self.far_p_target}' unknown: use one of {', '.join(FAR_P_TARGET)}"),
+            (math.isfinite(self.target_elsewhere_weight) and self.target_elsewhere_weight >= 0,
+             "target_elsewhere_weight must be >= 0 (0: off)"),
             (0.0 <= self.mask_max_inside <= 1.0, "mask_max_inside must be in [0, 1]"),
             (len(self.classes) > 0, "classes must name at least one class (e.g. ['boat'])"),
         ]
@@ -623,11 +639,14 @@ class VesselDetector:
                 candidates.target_scores,
             )
             parts.append(nms_per_window(part, self.config.nms_iou, self.config.class_agnostic_nms))
-        merged = WindowDetections.concatenate(parts)
+        candidates = WindowDetections.concatenate(parts)
+        merged = candidates
         if len(plan) > 1:
-            merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold,
-                                   class_agnostic=self.config.class_agnostic_nms,
-                                   priorities=[run.priority for run in plan])
+            priorities = [run.priority for run in plan]
+            merged = merge_windows(candidates, windows, self.config.nms_iou, self.config.covered_threshold,
+                                   class_agnostic=self.config.class_agnostic_nms, priorities=priorities)
+            if self.far_strip((width, height)) is not None and self.config.far_p_target == "min":
+                merged = cap_far_p_target(merged, candidates, far_window=int(np.argmin(priorities)))
         detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names,
                                 merged.target_scores)
         detections = self._filter(detections, (width, height))
@@ -637,6 +656,8 @@ class VesselDetector:
             detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,
                                             self.appearance_camera, calibration_scale, self.appearance_combine,
                                             self.appearance_nested_overlap)
+        if self.config.target_elsewhere_weight > 0:
+            detections = share_p_target(detections, self.config.target_elsewhere_weight)
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 
@@ -652,6 +673,41 @@ class VesselDetector:
         if self.mask:
             keep &= self.mask.keep(boxes, image_wh, self.config.mask_max_inside)
         return detections.take(keep)
+
+
+def cap_far_p_target(merged: WindowDetections, candidates: WindowDetections, far_window: int) -> WindowDetections:
+    """Merged detections whose far-strip boxes have at most the ``p_target`` of the band's box of the same boat.
+
+    ``candidates`` are the detections of every run before the merge; a band box is the same boat when its IoU with
+    the strip box exceeds ``FAR_BAND_MATCH_IOU`` (the best ``p_target`` among such boxes counts). A strip box no
+    band box matches keeps its own value: the band may have missed the boat.
+    """
+    from_band = candidates.window_index != far_window
+    from_strip = np.flatnonzero(merged.window_index == far_window)
+    if not from_band.any() or from_strip.size == 0:
+        return merged
+    overlap = box_iou(merged.boxes_xyxy[from_strip], candidates.boxes_xyxy[from_band]) > FAR_BAND_MATCH_IOU
+    band_p = np.where(overlap, candidates.target_scores[from_band][None, :], -np.inf).max(axis=1)
+    capped = merged.take(np.arange(len(merged)))
+    matched = np.isfinite(band_p)
+    capped.target_scores[from_strip[matched]] = np.fmin(capped.target_scores[from_strip[matched]], band_p[matched])
+    return capped
+
+
+def share_p_target(detections: Detections, elsewhere_weight: float) -> Detections:
+    """``detections`` with each known ``p_target`` divided by the frame's sum plus ``elsewhere_weight``.
+
+    A frame holds at most one vessel of interest, so its boxes' probabilities compete: ``elsewhere_weight`` stands
+    for the vessel being none of them. Unknown (NaN) values stay unknown.
+    """
+    known = np.isfinite(detections.p_target)
+    if not known.any():
+        return detections
+    shared = detections.take(np.arange(len(detections)))
+    total = float(np.sum(shared.p_target[known])) + elsewhere_weight
+    if total > 0:
+        shared.p_target[known] = np.clip(shared.p_target[known] / total, 0.0, 1.0)
+    return shared
 
 
 def annotate(bgr: np.ndarray, detections: Detections, detector: VesselDetector, scale: float = 0.5) -> np.ndarray:

@@ -101,6 +101,13 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "calibrated image size.", float_range=(0.0, 2000.0), read_only=True),
     ParamSpec("far_rows_px", 128.0, "Height of the far strip, pixels of the calibrated image size.",
               float_range=(8.0, 2000.0), read_only=True),
+    ParamSpec("far_p_target", "min", "With far_scale: a far-strip box's probability of being the vessel of "
+              "interest is min (the lower of its own and the band's box of the same boat: a zoomed far boat looks "
+              "like the vessel's close-ups, whichever boat it is) or strip (its own).", read_only=True),
+    ParamSpec("target_elsewhere_weight", 0.0, "Each box's probability of being the vessel of interest is divided by "
+              "the sum over its frame plus this weight (the vessel being none of the boxes): there is at most one "
+              "vessel of interest per frame, so a box far likelier than the others names it even at a small value "
+              "(0: off, the network's own values).", float_range=(0.0, 100.0), read_only=True),
     ParamSpec("exclusion_polygons", list(DEFAULT_EXCLUSION_POLYGONS), "Static exclusion masks, one polygon "
               "per string 'x,y x,y x,y ...' in pixels of the calibrated image size (default: the challenge "
               "camera's mooring post); [''] for none.", read_only=True),
@@ -222,6 +229,8 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
         far_scale=float(values["far_scale"]),
         far_above_horizon_px=float(values["far_above_horizon_px"]),
         far_rows_px=float(values["far_rows_px"]),
+        far_p_target=str(values["far_p_target"]),
+        target_elsewhere_weight=float(values["target_elsewhere_weight"]),
         exclusion_polygons=polygons,
         mask_max_inside=float(values["mask_max_inside"]),
         target_class=str(values["target_class"]).strip(),
