@@ -53,11 +53,11 @@ from vessel_detect.tiling import (
 LETTERBOX_PAD_VALUE = 114
 MODES = ("full", "band", "tiled")
 BAND_ONLY_OPTIONS = ("band_scale", "far_scale")
+"""Options of ``band`` mode that run the network at their own input size (0: off); no other mode takes them."""
 FAR_P_TARGET = ("min", "strip")
 """How a far-strip box's p_target is set: the lower of its own and the band's box of the same boat, or its own."""
 FAR_BAND_MATCH_IOU = 0.3
-"""IoU from which a band box is taken for the same boat as a far-strip box."""
-"""Options of ``band`` mode that run the network at their own input size (0: off); no other mode takes them."""
+"""IoU above which a band box is taken for the same boat as a far-strip box."""
 CHALLENGE_HORIZON_Y = 418.0
 """Screen y of the horizon of the challenge camera (1280x720), for when no calibration is at hand."""
 
