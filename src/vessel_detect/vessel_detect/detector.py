@@ -17,6 +17,9 @@ strip's own size, so this needs a model whose input height and width are free (a
 A zoomed far boat looks like the close-ups of the vessel of interest the model was trained on, whichever boat it is,
 so by default (``far_p_target: min``) a strip box's ``p_target`` is at most that of the band's box of the same boat.
 
+``size_prior`` (a ``SizePrior``, off by default) lowers the ``p_target`` of a box much larger than the vessel of
+interest would be at the depth its position gives (``vessel_detect.size_prior``).
+
 ``target_elsewhere_weight`` (0: off) divides each box's ``p_target`` by the frame's sum plus this weight: there is
 at most one vessel of interest, so a small ``p_target`` far above every other box's in its frame still names it.
 
@@ -41,6 +44,7 @@ from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect
 from vessel_detect.image_codec import ImageError
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
 from vessel_detect.model_store import ModelSpec, how_to_get, resolve_model, sha256_of
+from vessel_detect.size_prior import SizePrior
 from vessel_detect.tiling import (
     Window,
     WindowDetections,
@@ -537,6 +541,8 @@ class VesselDetector:
         self.appearance_camera = None  # the CameraModel its geometry features need (set by build_detector)
         self.appearance_combine = "replace"
         self.appearance_nested_overlap = 0.0  # > 0: after the cue, nested boxes keep only the likelier one
+        self.size_prior = SizePrior()  # off; build_detector sets it from the parameters, with its camera
+        self.size_prior_camera = None
         self.last_window_count = 0
 
     @property
@@ -656,6 +662,9 @@ class VesselDetector:
             detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,
                                             self.appearance_camera, calibration_scale, self.appearance_combine,
                                             self.appearance_nested_overlap)
+        if self.size_prior.enabled and self.size_prior_camera is not None:
+            calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
+            detections = apply_size_prior(detections, self.size_prior, self.size_prior_camera, calibration_scale)
         if self.config.target_elsewhere_weight > 0:
             detections = share_p_target(detections, self.config.target_elsewhere_weight)
         order = np.argsort(-detections.scores, kind="stable")
@@ -692,6 +701,21 @@ def cap_far_p_target(merged: WindowDetections, candidates: WindowDetections, far
     matched = np.isfinite(band_p)
     capped.target_scores[from_strip[matched]] = np.fmin(capped.target_scores[from_strip[matched]], band_p[matched])
     return capped
+
+
+def apply_size_prior(detections: Detections, prior: SizePrior, camera,
+                     calibration_scale: tuple[float, float] = (1.0, 1.0)) -> Detections:
+    """``detections`` with the ``p_target`` of boxes too large for the vessel at their depth lowered (``prior``).
+
+    ``camera`` is the calibration's ``CameraModel``; ``calibration_scale`` turns frame pixels into its pixels.
+    """
+    if len(detections) == 0 or not np.isfinite(detections.p_target).any():
+        return detections
+    sx, sy = calibration_scale
+    ratios = prior.log_size_ratios(camera, detections.boxes_xyxy * np.array([sx, sy, sx, sy]))
+    lowered = detections.take(np.arange(len(detections)))
+    lowered.p_target = prior.apply(lowered.p_target, ratios)
+    return lowered
 
 
 def share_p_target(detections: Detections, elsewhere_weight: float) -> Detections:

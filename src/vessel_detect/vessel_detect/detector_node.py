@@ -96,6 +96,13 @@ class _DetectorPhases:
     ``_cleanup`` (the model and publishers released).
     """
 
+    def _size_prior_note(self) -> str:
+        """For the start-up log: the size prior when on."""
+        prior = self.detector.size_prior
+        if not prior.enabled:
+            return ""
+        return f", p_target lowered for boxes over {math.exp(prior.tolerance):.2f}x the vessel's {prior.dimension}"
+
     def _declare(self) -> None:
         self.values = {}
         for spec in ALL_PARAMS:
@@ -172,7 +179,8 @@ class _DetectorPhases:
             f"detecting {','.join(config.classes)} with {self.detector.model.path} ({self.detector.model.layout}, "
             f"{config.mode}, {len(self.detector.windows(self.detector.reference_wh))} network runs per "
             f"{self.detector.reference_wh[0]}x{self.detector.reference_wh[1]} frame, score >= "
-            f"{config.score_threshold}) on {', '.join(topics)} -> {values['detections_topic']}"
+            f"{config.score_threshold}{self._size_prior_note()}) on {', '.join(topics)} -> "
+            f"{values['detections_topic']}"
         )
 
     def _deactivate(self) -> None:

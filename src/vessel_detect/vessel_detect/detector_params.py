@@ -32,6 +32,7 @@ from vessel_detect.detector import (
 )
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS
 from vessel_detect.model_store import ModelSpec
+from vessel_detect.size_prior import DEFAULT_SIZE_MODEL, DIMENSIONS, SizePrior
 
 NODE_NAME = "detector"
 
@@ -108,6 +109,17 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "the sum over its frame plus this weight (the vessel being none of the boxes): there is at most one "
               "vessel of interest per frame, so a box far likelier than the others names it even at a small value "
               "(0: off, the network's own values).", float_range=(0.0, 100.0), read_only=True),
+    ParamSpec("size_prior.dimension", "off", "A box much larger than the vessel of interest would be at the depth "
+              "its position gives (through the calibration and size_prior.model) is less likely the vessel: "
+              f"{', '.join(DIMENSIONS)} (which box size is compared). Needs the calibration (camera.* parameters).",
+              read_only=True),
+    ParamSpec("size_prior.tolerance", 0.3, "With size_prior.dimension: sizes up to exp(this) times the vessel's "
+              "expected size change nothing (natural log of the ratio).", float_range=(0.0, 5.0), read_only=True),
+    ParamSpec("size_prior.strength", 10.0, "With size_prior.dimension: log-odds of p_target lowered per unit of "
+              "log size ratio beyond the tolerance (0: off).", float_range=(0.0, 100.0), read_only=True),
+    ParamSpec("size_prior.model", list(DEFAULT_SIZE_MODEL), "a, b, c, d of the vessel's box size at a depth: width "
+              "= a / depth + b, height = c / depth + d (px, m); the fuser's distance_model, which ./vessel fit "
+              "distance-model writes to both.", read_only=True),
     ParamSpec("exclusion_polygons", list(DEFAULT_EXCLUSION_POLYGONS), "Static exclusion masks, one polygon "
               "per string 'x,y x,y x,y ...' in pixels of the calibrated image size (default: the challenge "
               "camera's mooring post); [''] for none.", read_only=True),
@@ -161,10 +173,25 @@ def default_values() -> dict[str, Any]:
     return {spec.name: spec.default for spec in ALL_PARAMS}
 
 
+def flatten_block(block: Mapping[str, Any] | None, prefix: str = "") -> dict[str, Any]:
+    """A YAML parameter block with its nested mappings named as ROS names them.
+
+    ``size_prior: {dimension: width}`` becomes ``size_prior.dimension: width``.
+    """
+    flat: dict[str, Any] = {}
+    for key, value in (block or {}).items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and name != "camera":
+            flat.update(flatten_block(value, f"{name}."))
+        else:
+            flat[name] = value
+    return flat
+
+
 def merge_values(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
     """Defaults overlaid with a parameter block (e.g. the ``detector:`` block of a YAML); unknown keys rejected."""
     values = default_values()
-    for key, value in (overrides or {}).items():
+    for key, value in flatten_block(overrides).items():
         if key in ("camera", "use_sim_time", "qos_overrides") or str(key).startswith(("camera.", "qos_overrides.")):
             continue
         if key not in _BY_NAME:
@@ -203,7 +230,9 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
             return [str(v) for v in value]
     except (TypeError, ValueError):
         pass
-    raise VesselError(f"detector parameter '{key}' = {value!r} has the wrong type; expected like {default!r}")
+    hint = (" (YAML reads an unquoted on/off/yes/no as true/false: quote it)"
+            if isinstance(default, str) and isinstance(value, bool) else "")
+    raise VesselError(f"detector parameter '{key}' = {value!r} has the wrong type; expected like {default!r}{hint}")
 
 
 def model_spec(values: Mapping[str, Any]) -> ModelSpec:
@@ -240,6 +269,13 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
     return config
 
 
+def size_prior(values: Mapping[str, Any]) -> SizePrior:
+    """The size prior of the parameters (validated)."""
+    return SizePrior(dimension=str(values["size_prior.dimension"]), tolerance=float(values["size_prior.tolerance"]),
+                     strength=float(values["size_prior.strength"]),
+                     size_model=tuple(float(v) for v in values["size_prior.model"]))
+
+
 def open_model(values: Mapping[str, Any]) -> OnnxModel:
     """Resolve, verify and open the model the parameters name."""
     cache = str(values["model_cache_dir"]).strip()
@@ -261,7 +297,13 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
     else:
         reference = tuple(int(v) for v in camera_model.image_size)
         horizon = horizon_band_top(camera_model)
+    prior = size_prior(values)
+    if prior.enabled and camera_model is None:
+        raise ModelError(f"size_prior.dimension '{prior.dimension}' needs the calibration to give each box a depth: "
+                         "load it with --params-file config/aitas_camera.yaml (the camera.* parameters), or set "
+                         "size_prior.dimension off")
     detector = VesselDetector(model or open_model(values), config, horizon, reference)
+    detector.size_prior, detector.size_prior_camera = prior, camera_model
     if values.get("appearance_model"):
 
         path = in_repo(values["appearance_model"])
@@ -301,9 +343,9 @@ def load_params_files(paths, node_name: str = NODE_NAME) -> tuple[dict[str, Any]
         if not path:
             continue
         blocks = read_params_yaml(path)
-        overrides.update({k: v for k, v in (blocks.get("/**") or {}).items() if k in _BY_NAME})
+        overrides.update({k: v for k, v in flatten_block(blocks.get("/**")).items() if k in _BY_NAME})
         for name in (node_name, f"/{node_name}"):
-            overrides.update(blocks.get(name) or {})
+            overrides.update(flatten_block(blocks.get(name)))
         for params in node_blocks(blocks, node_name):
             block = camera_block(params)
             if block is not None:

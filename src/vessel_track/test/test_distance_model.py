@@ -110,7 +110,9 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     out = tmp_path / "params.yaml"
     tide = repo / "config" / "water_level_aitas.csv"
     out.write_text("fuser:\n  ros__parameters:\n    fusion: {anchor_offset: 0.05, weights_mode: paper}\n"
-                   f"    water_level: {{file: {tide}}}\ntracker:\n  ros__parameters: {{min_hits: 2}}\n")
+                   f"    water_level: {{file: {tide}}}\ntracker:\n  ros__parameters: {{min_hits: 2}}\n"
+                   "detector:\n  ros__parameters:\n    size_prior:\n      dimension: width  # compared\n"
+                   "      model: [1.0, 2.0, 3.0, 4.0]\n")
     calib = repo / "config" / "aitas_camera.yaml"
     assert main(["--data", str(data_dir), "--videos", "7-12", "--calib", str(calib), "--out", str(out)]) == 0
     settings = load_fuser_settings(out)
@@ -121,3 +123,7 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     # shipped values to that iteration's precision, not to the last bits, which differ between CPUs.
     np.testing.assert_allclose(settings.cue_stats.covariance, shipped.cue_stats.covariance, rtol=1e-4)
     assert yaml.safe_load(out.read_text())["tracker"]["ros__parameters"] == {"min_hits": 2}
+    model = settings.distance_model  # the detector's size prior reads the same model, its other settings kept
+    assert yaml.safe_load(out.read_text())["detector"]["ros__parameters"]["size_prior"] == {
+        "dimension": "width", "model": [model.a, model.b, model.c, model.d]}
+    assert "# compared" in out.read_text()

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vessel_calib.calibration import calibrate_from_labels
+from vessel_calib.params import read_params_yaml, update_params_block
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import parse_videos
@@ -183,6 +184,18 @@ def cross_validated_cue_statistics(dataset, videos: list[int] | None, box_anchor
     return cue_statistics_of_residuals(np.vstack(resid), np.concatenate(x_resid))
 
 
+def update_detector_size_prior(path: Path, model: BoxSizeDistanceModel) -> bool:
+    """Give the file's ``detector.size_prior.model`` the new a, b, c, d, if it has one; True if written.
+
+    The detector's size prior reads the same model as the fuser.
+    """
+    block = (read_params_yaml(path).get("detector") or {}).get("size_prior")
+    if not isinstance(block, dict) or "model" not in block:
+        return False
+    update_params_block(path, "detector", "size_prior", {**block, "model": [model.a, model.b, model.c, model.d]})
+    return True
+
+
 @command_line_tool
 def main(argv: list[str] | None = None) -> int:
     """Command line: ``--data DIR --videos 7-12 [--calib FILE] --out FILE.yaml``."""
@@ -239,12 +252,14 @@ def main(argv: list[str] | None = None) -> int:
     fusion_block = kept.to_params()
     fusion_block.update(stats.to_params())
     update_params_file(args.out, args.node, "fusion", fusion_block)
+    detector_prior = update_detector_size_prior(args.out, model)
     print(f"distance model from {model.n_points} boxes: width = {model.a:.0f}/depth + {model.b:.1f} px "
           f"(sigma {model.sigma_width_px:.1f} px), height = {model.c:.0f}/depth + {model.d:.1f} px "
           f"(sigma {model.sigma_height_px:.1f} px)")
     print(f"cue std in ideal y ({how}, px): centre {stats.std_px[0]:.2f}, width {stats.std_px[1]:.2f}, height "
           f"{stats.std_px[2]:.2f}; fitted weights {', '.join(f'{w:.2f}' for w in stats.weights)}")
-    print(f"-> {args.out} ({args.node}.distance_model, {args.node}.fusion)")
+    print(f"-> {args.out} ({args.node}.distance_model, {args.node}.fusion"
+          f"{', detector.size_prior.model' if detector_prior else ''})")
     return 0
 
 
