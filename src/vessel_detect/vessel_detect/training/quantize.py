@@ -8,11 +8,13 @@ recall holds: compare the two with ``./vessel detect recall`` and ``./vessel ben
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from vessel_calib.params import atomic_write_text
 from vessel_common.errors import DataError, ModelError
 from vessel_common.paths import repo_file
 from vessel_detect.training.augment import band_input
@@ -33,18 +35,25 @@ def quantize_model(model: Path, out: Path, tensors: list[np.ndarray]) -> None:
         def get_next(self):
             return next(self._items, None)
 
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise DataError(f"cannot create the folder of {out}: {error.strerror or error}") from None
     prepared = out.with_name(out.stem + ".prep.onnx")
+    partial = out.with_name(out.stem + ".partial.onnx")  # an earlier model at ``out`` stays until this one is whole
     try:
         quant_pre_process(str(model), str(prepared), skip_symbolic_shape=True)
-        quantize_static(str(prepared), str(out), Reader(), quant_format=QuantFormat.QDQ, per_channel=True,
+        quantize_static(str(prepared), str(partial), Reader(), quant_format=QuantFormat.QDQ, per_channel=True,
                         activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8)
+        os.replace(partial, out)
     except Exception as error:  # onnxruntime.quantization raises untyped errors
         raise ModelError(f"quantizing {model} failed: {str(error)[:300]}") from None
     finally:
         prepared.unlink(missing_ok=True)
+        partial.unlink(missing_ok=True)
     names = model.with_suffix(".names")
     if names.is_file():
-        out.with_suffix(".names").write_text(names.read_text())
+        atomic_write_text(out.with_suffix(".names"), names.read_text())
 
 
 def add_parser(sub) -> None:
