@@ -62,7 +62,7 @@ def test_the_detector_applies_the_prior_in_the_calibrations_pixels():
 
 
 @pytest.mark.parametrize(("key", "value", "message"), [
-    ("size_prior.dimension", "area", "size_prior.dimension 'area' unknown: use one of off, width, height"),
+    ("size_prior.dimension", "area", "size_prior.dimension 'area' unknown: use one of none, width, height"),
     ("size_prior.strength", -1.0, "size_prior.strength must be >= 0"),
     ("size_prior.tolerance", float("nan"), "size_prior.tolerance must be >= 0"),
     ("size_prior.model", [0.0, 6.0, 2800.0, 0.0], "size_prior.model a and c must be > 0"),
@@ -76,6 +76,8 @@ def test_a_wrong_size_prior_parameter_is_refused_naming_it(key, value, message):
 def test_an_unquoted_off_is_refused_with_the_fix():
     with pytest.raises(VesselError, match="quote it"):
         merge_values({"size_prior": {"dimension": False}})
+    with pytest.raises(VesselError, match="use one of none, width, height"):
+        size_prior(merge_values({"size_prior.dimension": "off"}))
 
 
 def test_the_prior_needs_the_calibration():

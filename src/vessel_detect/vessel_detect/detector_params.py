@@ -109,7 +109,7 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
               "the sum over its frame plus this weight (the vessel being none of the boxes): there is at most one "
               "vessel of interest per frame, so a box far likelier than the others names it even at a small value "
               "(0: off, the network's own values).", float_range=(0.0, 100.0), read_only=True),
-    ParamSpec("size_prior.dimension", "off", "A box much larger than the vessel of interest would be at the depth "
+    ParamSpec("size_prior.dimension", "none", "A box much larger than the vessel of interest would be at the depth "
               "its position gives (through the calibration and size_prior.model) is less likely the vessel: "
               f"{', '.join(DIMENSIONS)} (which box size is compared). Needs the calibration (camera.* parameters).",
               read_only=True),
@@ -301,7 +301,7 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
     if prior.enabled and camera_model is None:
         raise ModelError(f"size_prior.dimension '{prior.dimension}' needs the calibration to give each box a depth: "
                          "load it with --params-file config/aitas_camera.yaml (the camera.* parameters), or set "
-                         "size_prior.dimension off")
+                         "size_prior.dimension none")
     detector = VesselDetector(model or open_model(values), config, horizon, reference)
     detector.size_prior, detector.size_prior_camera = prior, camera_model
     if values.get("appearance_model"):

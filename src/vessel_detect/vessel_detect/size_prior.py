@@ -22,8 +22,9 @@ import numpy as np
 
 from vessel_common.errors import VesselError
 
-DIMENSIONS = ("off", "width", "height")
-"""Which box size the prior compares: none, the width, or the height."""
+DIMENSIONS = ("none", "width", "height")
+"""Which box size the prior compares: none (off), the width, or the height. Not "off": YAML and ``-p x:=off`` read
+that as false."""
 DEFAULT_SIZE_MODEL = (4838.3043242984, 6.0449776177, 2844.3419953655, -0.2718582771)
 """a, b, c, d of the box-size distance model fitted on the challenge camera's hand boxes (the fuser's default)."""
 PROBABILITY_FLOOR = 1e-9
@@ -34,7 +35,7 @@ PROBABILITY_FLOOR = 1e-9
 class SizePrior:
     """How much a box larger than the vessel's size at its depth lowers its probability of being the vessel."""
 
-    dimension: str = "off"
+    dimension: str = "none"
     tolerance: float = 0.3
     strength: float = 10.0
     size_model: tuple[float, float, float, float] = DEFAULT_SIZE_MODEL
@@ -60,8 +61,8 @@ class SizePrior:
 
     @property
     def enabled(self) -> bool:
-        """True unless the dimension is ``off`` or the strength 0."""
-        return self.dimension != "off" and self.strength > 0
+        """True unless the dimension is ``none`` or the strength 0."""
+        return self.dimension != "none" and self.strength > 0
 
     def log_size_ratios(self, camera, boxes_xyxy) -> np.ndarray:
         """``ln(size / expected size)`` of each box (calibrated pixels); NaN where its position gives no depth."""
