@@ -127,3 +127,11 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     assert yaml.safe_load(out.read_text())["detector"]["ros__parameters"]["size_prior"] == {
         "dimension": "width", "model": [model.a, model.b, model.c, model.d]}
     assert "# compared" in out.read_text()
+
+
+def test_the_detectors_size_prior_defaults_to_the_same_distance_model():
+    """The detector cannot import the fuser's model (it sits below it); its default copy must not drift."""
+    from vessel_detect.size_prior import DEFAULT_SIZE_MODEL
+
+    model = BoxSizeDistanceModel()
+    assert DEFAULT_SIZE_MODEL == (model.a, model.b, model.c, model.d)
