@@ -58,8 +58,13 @@ def test_a_short_live_stream_reports_every_figure(ros_env, data_dir, model_path,
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(out.read_text())
     assert result["frames_offered"] > 100  # 25 frames/s for 15 s
-    assert 0 < result["frames_processed"] < result["frames_offered"]
-    assert result["frames_dropped_by_detector"] > 0
+    # Whether the detector keeps up with 25 frames/s depends on the machine: the counts must only add up. The
+    # counters are read at the window's two ends, where a frame or two may be on the way.
+    offered, received = result["frames_offered"], result["frames_received_by_detector"]
+    processed, dropped = result["frames_processed"], result["frames_dropped_by_detector"]
+    in_flight = 5
+    assert 0 < processed and 0 <= dropped and received <= offered + in_flight
+    assert abs(processed + dropped - received) <= in_flight
     assert result["latency_image_to_fix_ms"]["n"] > 0 and math.isfinite(result["latency_image_to_fix_ms"]["p95"])
     assert set(result["memory"]) >= {"camera", "detector", "tracker", "fuser", "gps_publisher"}
     assert "latency image -> fix" in done.stdout
