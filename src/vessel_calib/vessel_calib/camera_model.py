@@ -301,6 +301,17 @@ class CameraModel:
         """
         return box_points(boxes_xyxy, min(max(self._box_anchor + float(anchor_offset), 0.0), 1.0))
 
+    def box_depths_m(self, boxes_xyxy) -> np.ndarray:
+        """Depth (``depth_m``) of each box's reference point on the sea; NaN where it has none.
+
+        None: the point is on or above the horizon, or off the lens model. The box size a vessel would have at the
+        box's place follows from this depth.
+        """
+        ref = self.box_reference_points(boxes_xyxy)
+        with np.errstate(invalid="ignore"):
+            xw, yw, valid = self.screen_to_world(ref[:, 0], ref[:, 1])
+            return np.where(valid, self.depth_m(np.nan_to_num(xw), np.nan_to_num(yw)), np.nan)
+
     @property
     def max_screen_radius(self) -> float:
         """Largest screen distance from the centre that the lens model can undistort (inf when K1 >= 0)."""

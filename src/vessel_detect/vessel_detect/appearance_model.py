@@ -123,9 +123,8 @@ def geometry_features(camera, size_model, boxes_xyxy, scores) -> np.ndarray:
     w = np.maximum(boxes[:, 2] - boxes[:, 0], 1.0)
     h = np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ref = camera.box_reference_points(boxes)
-        xw, yw, valid = camera.screen_to_world(ref[:, 0], ref[:, 1])
-        depth = np.where(valid, camera.depth_m(np.nan_to_num(xw), np.nan_to_num(yw)), FAR_DEPTH_M)
+        depth = camera.box_depths_m(boxes)
+        valid = np.isfinite(depth)
         depth = np.clip(np.nan_to_num(depth, nan=FAR_DEPTH_M), NEAR_DEPTH_M, FAR_DEPTH_M)
         width_ratio = np.log(w / np.maximum(a / depth + b, 2.0))
         height_ratio = np.log(h / np.maximum(c / depth + d, 2.0))

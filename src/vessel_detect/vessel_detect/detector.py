@@ -656,14 +656,12 @@ class VesselDetector:
         detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names,
                                 merged.target_scores)
         detections = self._filter(detections, (width, height))
+        calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
         if self.appearance is not None:
-
-            calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
             detections = rescore_detections(detections, image, self.appearance, self.appearance_min_probability,
                                             self.appearance_camera, calibration_scale, self.appearance_combine,
                                             self.appearance_nested_overlap)
         if self.size_prior.enabled and self.size_prior_camera is not None:
-            calibration_scale = (self.reference_wh[0] / width, self.reference_wh[1] / height)
             detections = apply_size_prior(detections, self.size_prior, self.size_prior_camera, calibration_scale)
         if self.config.target_elsewhere_weight > 0:
             detections = share_p_target(detections, self.config.target_elsewhere_weight)

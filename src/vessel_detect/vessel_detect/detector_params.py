@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.params import camera_block, node_blocks, read_params_yaml
+from vessel_calib.params import camera_block, flatten, node_blocks, read_params_yaml
 from vessel_common.errors import ModelError, VesselError
 from vessel_common.paths import in_repo
 from vessel_detect.appearance_model import (
@@ -173,25 +173,10 @@ def default_values() -> dict[str, Any]:
     return {spec.name: spec.default for spec in ALL_PARAMS}
 
 
-def flatten_block(block: Mapping[str, Any] | None, prefix: str = "") -> dict[str, Any]:
-    """A YAML parameter block with its nested mappings named as ROS names them.
-
-    ``size_prior: {dimension: width}`` becomes ``size_prior.dimension: width``.
-    """
-    flat: dict[str, Any] = {}
-    for key, value in (block or {}).items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping) and name != "camera":
-            flat.update(flatten_block(value, f"{name}."))
-        else:
-            flat[name] = value
-    return flat
-
-
 def merge_values(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
     """Defaults overlaid with a parameter block (e.g. the ``detector:`` block of a YAML); unknown keys rejected."""
     values = default_values()
-    for key, value in flatten_block(overrides).items():
+    for key, value in flatten(overrides or {}).items():
         if key in ("camera", "use_sim_time", "qos_overrides") or str(key).startswith(("camera.", "qos_overrides.")):
             continue
         if key not in _BY_NAME:
@@ -343,9 +328,9 @@ def load_params_files(paths, node_name: str = NODE_NAME) -> tuple[dict[str, Any]
         if not path:
             continue
         blocks = read_params_yaml(path)
-        overrides.update({k: v for k, v in flatten_block(blocks.get("/**")).items() if k in _BY_NAME})
+        overrides.update({k: v for k, v in flatten(blocks.get("/**") or {}).items() if k in _BY_NAME})
         for name in (node_name, f"/{node_name}"):
-            overrides.update(flatten_block(blocks.get(name)))
+            overrides.update(flatten(blocks.get(name) or {}))
         for params in node_blocks(blocks, node_name):
             block = camera_block(params)
             if block is not None:

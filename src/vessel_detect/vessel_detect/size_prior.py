@@ -72,9 +72,7 @@ class SizePrior:
         a, b, c, d = (float(v) for v in self.size_model)
         size = boxes[:, 2] - boxes[:, 0] if self.dimension == "width" else boxes[:, 3] - boxes[:, 1]
         with np.errstate(invalid="ignore", divide="ignore"):
-            ref = camera.box_reference_points(boxes)
-            xw, yw, valid = camera.screen_to_world(ref[:, 0], ref[:, 1])
-            depth = np.where(valid, camera.depth_m(np.nan_to_num(xw), np.nan_to_num(yw)), np.nan)
+            depth = camera.box_depths_m(boxes)
             depth = np.where(depth > 0, depth, np.nan)
             expected = a / depth + b if self.dimension == "width" else c / depth + d
             ratio = np.log(size / expected)

@@ -40,6 +40,7 @@ import yaml
 
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
+from vessel_calib.params import flatten
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos
@@ -120,15 +121,6 @@ def summary_ms(values_s: Sequence[float]) -> dict[str, float | int]:
 # --------------------------------------------------------------------------------------------------------------
 # Parameters: what a node reads from the parameter files, and the detector core built from it
 # --------------------------------------------------------------------------------------------------------------
-def _flatten(prefix: str, values: dict, out: dict[str, object]) -> None:
-    for key, value in values.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            _flatten(f"{name}.", value, out)
-        else:
-            out[name] = value
-
-
 def node_parameters(params_files: Sequence[Path], node_name: str) -> dict[str, object]:
     """The parameters a node named ``node_name`` gets from ``--params-file`` files, later files winning.
 
@@ -146,7 +138,7 @@ def node_parameters(params_files: Sequence[Path], node_name: str) -> dict[str, o
             raise DataError(f"parameter file {path} is not a mapping of node names to ros__parameters")
         for key, block in document.items():
             if str(key) in matching and isinstance(block, dict):
-                _flatten("", dict(block.get("ros__parameters") or {}), merged)
+                merged.update(flatten(block.get("ros__parameters") or {}))
     return merged
 
 

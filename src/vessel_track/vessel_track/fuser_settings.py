@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from vessel_calib.params import node_blocks, read_params_yaml
+from vessel_calib.params import flatten, node_blocks, read_params_yaml
 from vessel_calib.water_level import load_water_level
 from vessel_common.errors import DataError
 from vessel_track.distance_model import BoxSizeDistanceModel
@@ -231,18 +231,6 @@ def nest(params: Mapping[str, Any]) -> dict:
             existing.update(nest(value))
         else:
             node[parts[-1]] = value
-    return out
-
-
-def flatten(params: Mapping[str, Any], prefix: str = "") -> dict:
-    """Nested mapping -> ``{"a.b": value}`` (ROS parameter names)."""
-    out = {}
-    for key, value in params.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(flatten(value, name + "."))
-        else:
-            out[name] = value
     return out
 
 
