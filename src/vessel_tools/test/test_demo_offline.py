@@ -60,3 +60,21 @@ def test_mistyped_tracker_inputs_are_named(tmp_path, block, message):
 
     with pytest.raises(DataError, match=message):
         load_detection_inputs(_params(tmp_path, block))
+
+
+def test_the_coco_preset_over_the_shipped_parameters_gives_settings_every_node_accepts(tmp_path):
+    """``./vessel demo --detector-params config/detector_coco.yaml`` (the README's comparison) must start."""
+    from pathlib import Path
+
+    from vessel_detect.detector_params import load_params_files
+    from vessel_tools.demo import merged_params_file
+    from vessel_track.fuser_settings import load_fuser_settings
+    from vessel_track.tracker import load_tracker_config
+
+    config = Path(__file__).resolve().parents[3] / "config"
+    merged = merged_params_file(config / "aitas.yaml", config / "detector_coco.yaml", tmp_path / "params.yaml")
+    settings = load_fuser_settings(merged)
+    assert settings.selection.recent_evidence_s == 0.0 and settings.fusion.anchor_offset == 0.05
+    load_tracker_config(merged)
+    values, _ = load_params_files([merged, config / "aitas_camera.yaml"])
+    assert values["size_prior.dimension"] == "none" and values["classes"] == ["boat"]
