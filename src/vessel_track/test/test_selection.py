@@ -157,6 +157,39 @@ def test_online_join_keeps_the_target_through_a_new_track_id():
     assert selector.score("C") > selector.score("S") > 0
 
 
+def _no_world(tid, conf=0.8, status=0):
+    """A track whose box gave no sea position this frame (cut at the lens model's edge, above the horizon)."""
+    return SimpleNamespace(screen=SimpleNamespace(track_id=tid, status=status, updated=True, confidence=conf),
+                           has_world=False, position=np.full(2, np.nan), velocity=np.full(2, np.nan))
+
+
+def test_a_track_whose_first_box_had_no_position_continues_the_lost_history():
+    """The vessel comes back at the image edge: its new track's first box has no position, its second does."""
+    config = SelectionConfig(reacquire_window_s=3600.0)
+    selector = OnlineTargetSelector(config)
+    for k in range(10):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)),
+                                  _wt("S", [-300, 300], conf=0.6)])
+    assert selector.target == "A"
+    selector.update(40.0, [_wt("A", [180, 50], status=3), _wt("S", [-300, 300], conf=0.6)])
+    assert selector.update(44.0, [_no_world("C"), _wt("S", [-300, 300], conf=0.6)]) is None
+    target = selector.update(48.0, [_wt("C", [196, 50], status=0, velocity=(2.0, 0)),
+                                    _wt("S", [-300, 300], conf=0.6)])
+    assert target == "C" and selector.continued == {"C": "A"} and selector.joins == 1
+    assert selector.score("C") > selector.score("S")
+
+
+def test_a_track_that_ran_beside_the_ended_one_does_not_take_its_history():
+    """Two tracks at the same time are two boats, whatever the positions say later."""
+    selector = OnlineTargetSelector(SelectionConfig(reacquire_window_s=3600.0))
+    for k in range(10):
+        selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)), _no_world("C")])
+    selector.update(40.0, [_wt("A", [180, 50], status=3), _no_world("C")])
+    target = selector.update(44.0, [_wt("C", [188, 50], status=1, velocity=(2.0, 0))])
+    assert selector.continued == {} and selector.joins == 0
+    assert target is None  # the wait for the lost vessel holds: no stand-in
+
+
 def test_tentative_target_only_while_nothing_established():
     selector = OnlineTargetSelector()
     assert selector.update(0.0, [_wt("T", [100, 0], status=0)]) == "T"

@@ -584,8 +584,10 @@ class OnlineTargetSelector:
         return running.score(self.config, self._now) if running is not None else 0.0
 
     def _try_inherit(self, track_id: str, stamp: float, position: np.ndarray,
-                     confidence: float = math.nan) -> _Running | None:
+                     confidence: float = math.nan, first_stamp: float = math.inf) -> _Running | None:
         """An ended track whose extrapolation reaches ``position`` now: its history continues in ``track_id``.
+
+        Only a track that ended before ``track_id`` began (``first_stamp``; two tracks at once are two boats).
 
         With ``appearance_joins`` (evidence score) a history is only continued by a track whose first box looks
         the same way: one that says the vessel of interest does not take another boat's history, nor the other way.
@@ -598,6 +600,8 @@ class OnlineTargetSelector:
         for ended_id, ended in self._ended.items():
             gap = stamp - ended.last_stamp
             if not (0 <= gap <= cfg.join_max_gap_s) or ended.last_position is None or ended.excluded_heir == track_id:
+                continue
+            if not ended.last_stamp < first_stamp:
                 continue
             if looks * ended.score(cfg, stamp) < 0:
                 continue
@@ -635,12 +639,22 @@ class OnlineTargetSelector:
             running = self._running.get(tid)
             position = np.asarray(wt.position, dtype=float) if wt.has_world else None
             measured = wt.screen.updated and position is not None and np.all(np.isfinite(position))
-            if running is None:
-                running = None
+            # A track continues an ended one's history from its first box with a position: a track whose first
+            # boxes had none (cut by the lens model's edge, above the horizon) may still be the vessel come back.
+            if running is None or (measured and running.first_position is None and not running.inherited_from):
+                inherited = None
                 if measured:
-                    running = self._try_inherit(tid, stamp, position,
-                                                float(wt.screen.confidence) if wt.screen.updated else math.nan)
-                if running is None:
+                    inherited = self._try_inherit(tid, stamp, position,
+                                                  float(wt.screen.confidence) if wt.screen.updated else math.nan,
+                                                  running.first_stamp if running is not None else math.inf)
+                if inherited is not None and running is not None:
+                    inherited.confidences.extend(running.confidences)
+                    inherited.confidence_stamps.extend(running.confidence_stamps)
+                    inherited.consistent += running.consistent
+                    inherited.known += running.known
+                if inherited is not None:
+                    running = inherited
+                elif running is None:
                     running = _Running(deque(maxlen=cfg.history_length), deque(maxlen=cfg.history_length),
                                        first_stamp=stamp)
                 self._running[tid] = running
