@@ -197,6 +197,36 @@ def test_the_scale_range_option_is_checked_and_defaults_to_the_augmentation_defa
             _scale_range(wrong)
 
 
+def test_the_colour_jitter_option_is_checked_and_defaults_to_the_augmentation_default():
+    from vessel_detect.training.train_cli import _colour_jitter
+
+    default = AugmentSettings()
+    text = f"{default.hue_deg:g},{default.saturation:g},{default.value:g}"
+    assert replace(default, **_colour_jitter(text)) == default
+    assert _colour_jitter("0,0,0.35") == {"hue_deg": 0.0, "saturation": 0.0, "value": 0.35}
+    for wrong in ("6,0.35", "a,b,c", "6,1.0,0.3", "-1,0.3,0.3", "nan,0.3,0.3", "6,0.3,inf"):
+        with pytest.raises(DataError, match="--colour-jitter"):
+            _colour_jitter(wrong)
+
+
+def test_without_colour_jitter_the_crops_keep_their_colours_and_draw_the_same_crops():
+    """Hue and saturation off: the crop is the same as with them, except for its brightness (paired comparisons)."""
+    image, labels = _frame_with_boat(None)
+    image = image.copy()
+    image[..., 2] = 200  # a coloured scene: the red channel high
+    plain = AugmentSettings(crop_wh=(256, 128), hue_deg=0.0, saturation=0.0, value=0.0)
+    jittered = AugmentSettings(crop_wh=(256, 128))
+    for seed in range(5):
+        a = random_sample(image, labels, 150.0, np.random.default_rng(seed), plain)
+        b = random_sample(image, labels, 150.0, np.random.default_rng(seed), jittered)
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+        assert a.image.shape == b.image.shape
+        np.testing.assert_allclose(np.median(a.image.reshape(3, -1), axis=1), (90, 110, 200), atol=3.0)  # HSV rounding
+    jittered_medians = [np.median(random_sample(image, labels, 150.0, np.random.default_rng(seed),
+                                                jittered).image.reshape(3, -1), axis=1) for seed in range(5)]
+    assert max(float(np.abs(m - (90, 110, 200)).max()) for m in jittered_medians) > 5.0
+
+
 def test_a_lower_scale_range_shows_the_boats_smaller():
     image, labels = _frame_with_boat(None)  # the vessel 40 px wide
     small = AugmentSettings(crop_wh=(256, 128), zoom_target=0.0, scale_range=(0.4, 0.5))

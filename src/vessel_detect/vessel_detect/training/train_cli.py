@@ -70,11 +70,27 @@ def add_parser(sub) -> None:
     train.add_argument("--scale-range", default=scale_range,
                        help="LO,HI: ordinary crops are resized by a factor drawn log-uniformly from this range (below "
                             f"1 the boats look smaller, as farther ones do; default {scale_range})")
+    jitter = f"{defaults.augment.hue_deg:g},{defaults.augment.saturation:g},{defaults.augment.value:g}"
+    train.add_argument("--colour-jitter", default=jitter,
+                       help="HUE,SATURATION,VALUE: each crop's hue is shifted by up to HUE degrees and its saturation "
+                            f"and brightness scaled by up to 1 +- SATURATION and VALUE (default {jitter}; 0 for none)")
     train.add_argument("--input-size", default=f"{defaults.input_hw[1]}x{defaults.input_hw[0]}",
                        help="exported network input WIDTHxHEIGHT, multiples of 32 (default 1280x352: the band)")
     train.add_argument("--crop-size", default=f"{defaults.augment.crop_wh[0]}x{defaults.augment.crop_wh[1]}",
                        help="training crop WIDTHxHEIGHT, multiples of 32")
     train.set_defaults(func=cmd_train)
+
+
+def _colour_jitter(text: str) -> dict[str, float]:
+    """``--colour-jitter HUE,SAT,VALUE`` as ``AugmentSettings`` fields, or a clear error."""
+    try:
+        hue, saturation, value = (float(v) for v in text.split(","))
+    except ValueError:
+        raise DataError(f"--colour-jitter must be HUE,SATURATION,VALUE such as 6,0.35,0.35, got {text!r}") from None
+    if not (0 <= hue <= 90 and 0 <= saturation < 1 and 0 <= value < 1):
+        raise DataError(f"--colour-jitter {text}: the hue shift must be 0-90 degrees and the saturation and value "
+                        "ranges at least 0 and below 1")
+    return {"hue_deg": hue, "saturation": saturation, "value": value}
 
 
 def _scale_range(text: str) -> tuple[float, float]:
@@ -152,7 +168,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
                              class_min_height_px=args.class_min_height, ema_decay=args.ema_decay,
                              augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
-                                                     zoom_other=args.zoom_other))
+                                                     zoom_other=args.zoom_other,
+                                                     **_colour_jitter(args.colour_jitter)))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
     if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
