@@ -521,6 +521,13 @@ class _Running:
     def recent_evidence(self, config: SelectionConfig, now: float) -> float:
         return config.recent_evidence(np.fromiter(self.confidences, float), self.ages(now))
 
+    def append_evidence(self, later: _Running) -> None:
+        """Add the confidences and size counts of a later piece of the same vessel's track after this history's."""
+        self.confidences.extend(later.confidences)
+        self.confidence_stamps.extend(later.confidence_stamps)
+        self.consistent += later.consistent
+        self.known += later.known
+
     def forget_before(self, stamp: float) -> None:
         """Drop the confidences older than ``stamp``: they belong to what the track followed before."""
         keep = [(c, t) for c, t in zip(self.confidences, self.confidence_stamps, strict=True) if t >= stamp]
@@ -648,10 +655,7 @@ class OnlineTargetSelector:
                                                   float(wt.screen.confidence) if wt.screen.updated else math.nan,
                                                   running.first_stamp if running is not None else math.inf)
                 if inherited is not None and running is not None:
-                    inherited.confidences.extend(running.confidences)
-                    inherited.confidence_stamps.extend(running.confidence_stamps)
-                    inherited.consistent += running.consistent
-                    inherited.known += running.known
+                    inherited.append_evidence(running)
                 if inherited is not None:
                     running = inherited
                 elif running is None:
@@ -773,13 +777,12 @@ class OnlineTargetSelector:
         if best is None:
             return
         candidate = self._running[best]
-        merged = deque(current.confidences, maxlen=cfg.history_length)
-        merged.extend(candidate.confidences)
-        merged_stamps = deque(current.confidence_stamps, maxlen=cfg.history_length)
-        merged_stamps.extend(candidate.confidence_stamps)
-        candidate.confidences, candidate.confidence_stamps = merged, merged_stamps
-        candidate.consistent += current.consistent
-        candidate.known += current.known
+        merged = _Running(deque(current.confidences, maxlen=cfg.history_length),
+                          deque(current.confidence_stamps, maxlen=cfg.history_length),
+                          consistent=current.consistent, known=current.known)
+        merged.append_evidence(candidate)
+        candidate.confidences, candidate.confidence_stamps = merged.confidences, merged.confidence_stamps
+        candidate.consistent, candidate.known = merged.consistent, merged.known
         candidate.path_m += current.path_m + float(np.hypot(*(candidate.first_position - current.last_position)))
         candidate.inherited_from = self.target
         candidate.established = True
