@@ -84,12 +84,12 @@ class _CameraPhases:
         self._newest_sent_ns: int | None = None  # acks of later stamps are stale (a loop that kept the stamps)
         self.source: ImageSource | None = None
         self._worker: threading.Thread | None = None
-        self._publishers: list = []
+        self._camera_publishers: list = []
         self._ack_subscription = None
 
     def _make_publisher(self, message_type, topic: str, qos):
         publisher = self.create_publisher(message_type, topic, qos)
-        self._publishers.append(publisher)
+        self._camera_publishers.append(publisher)
         return publisher
 
     def _configure(self) -> None:
@@ -169,9 +169,9 @@ class _CameraPhases:
         if self.source is not None:
             self.source.close()
             self.source = None
-        for publisher in self._publishers:
+        for publisher in self._camera_publishers:
             release_publisher(self, publisher)
-        self._publishers = []
+        self._camera_publishers = []
         if self._ack_subscription is not None:
             self.destroy_subscription(self._ack_subscription)
             self._ack_subscription = None
