@@ -11,7 +11,7 @@ import subprocess
 
 import pytest
 
-from vessel_common.node_support import command_line_parameters
+from vessel_common.node_support import command_line_parameters, params_file_parameters
 
 REPO = __import__("pathlib").Path(__file__).resolve().parents[3]
 GRAPH_FILE = REPO / "config" / "aitas.yaml"
@@ -22,6 +22,23 @@ def test_command_line_assignments_are_read_for_this_node_only():
             "-p", "fuser:max_range_m:=9.0", "-p", "tracker:size_weight:=0.5", "--", "-p", "not_ros:=1"]
     assert command_line_parameters(args, "tracker") == {"gate_px": "55.0", "min_hits": "2", "size_weight": "0.5"}
     assert command_line_parameters(["tracker", "-p", "gate_px:=1.0"], "tracker") == {}  # outside --ros-args
+
+
+def test_a_parameter_files_names_are_read_from_the_blocks_that_name_this_node(tmp_path):
+    own = tmp_path / "own.yaml"
+    own.write_text("/**:\n  ros__parameters:\n    use_sim_time: false\n    everyone: 1\n"
+                   "tracker:\n  ros__parameters:\n    gate_pxx: 30.0\n    nested:\n      name: 2\n"
+                   "/fuser:\n  ros__parameters:\n    other: 3\n"
+                   "/**/tracker:\n  ros__parameters:\n    anywhere: 4\n"
+                   "/standby_1:\n  tracker:\n    ros__parameters:\n      in_namespace: 5\n")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("tracker: [unclosed\n")  # rcl refuses such a file itself, before any node code
+    args = ["tracker", "--ros-args", "--params-file", str(own), "--params-file", str(broken)]
+    assert params_file_parameters(args, "/tracker") == {"gate_pxx": str(own), "nested.name": str(own),
+                                                        "anywhere": str(own)}
+    assert params_file_parameters(args, "/standby_1/tracker") == {"anywhere": str(own), "in_namespace": str(own)}
+    assert params_file_parameters(args, "/fuser") == {"other": str(own)}
+    assert params_file_parameters(["tracker", "--params-file", str(own)], "/tracker") == {}  # outside --ros-args
 
 
 @pytest.mark.ros
@@ -59,6 +76,26 @@ def test_a_bad_command_line_value_stops_the_node_with_one_line(ros_env, assignme
                           env=ros_env, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2, (done.stdout, done.stderr)
     assert message in done.stderr and "Traceback" not in done.stderr + done.stdout
+    error = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(error) == 1 and error[0].count("parameter gate_px") <= 1 and error[0].count("(default") <= 1, error
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("package, executable, block", [("vessel_track", "tracker", "/tracker"),
+                                                        ("vessel_track", "fuser", "fuser"),
+                                                        ("vessel_detect", "detector", "/**/detector")])
+def test_a_misspelt_name_in_a_parameter_file_stops_the_node_with_one_line(ros_env, tmp_path, package, executable,
+                                                                          block):
+    """A name the node does not declare, in a block of a parameter file that names the node, is not ignored."""
+    misspelt = tmp_path / "misspelt.yaml"
+    misspelt.write_text(f"{block}:\n  ros__parameters:\n    qos_depthh: 5\n")
+    path = REPO / f"ros2_ws/install/{package}/lib/{package}/{executable}"
+    done = subprocess.run([str(path), "--ros-args", "--params-file", str(GRAPH_FILE), "--params-file",
+                           str(REPO / "config" / "aitas_camera.yaml"), "--params-file", str(misspelt)],
+                          env=ros_env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert f"{executable} has no parameter qos_depthh" in done.stderr and str(misspelt) in done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
 
 
 def _python_value(value):

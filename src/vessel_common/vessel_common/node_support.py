@@ -193,6 +193,74 @@ def unknown_command_line_parameters(node: Node, args: Sequence[str]) -> list[str
     return [name for name in names if not node.has_parameter(name) and not name.startswith("qos_overrides.")]
 
 
+def params_file_parameters(args: Sequence[str], node_fqn: str) -> dict[str, str]:
+    """Parameter names that the ``--params-file`` files in ``args`` give the node ``node_fqn`` -> the file.
+
+    Only a block that names this node (``tracker``, ``/tracker``, ``/ns/tracker``, ``/**/tracker``, or the node
+    nested under its namespace), not ``/**``, which every node reads and no node owns. A file that cannot be read
+    is left to rcl, which has already refused it.
+    """
+    import yaml
+
+    base = node_fqn.rsplit("/", 1)[-1]
+    found: dict[str, str] = {}
+    inside = False
+    args = list(args)
+
+    def blocks(mapping: Any, parts: tuple[str, ...]):
+        for key, body in mapping.items():
+            if not isinstance(body, dict):
+                continue
+            if key == "ros__parameters":
+                yield "/" + "/".join(parts), body
+            else:
+                yield from blocks(body, parts + tuple(p for p in str(key).split("/") if p))
+
+    def names(mapping: dict, prefix: str = ""):
+        for key, value in mapping.items():
+            if isinstance(value, dict):
+                yield from names(value, f"{prefix}{key}.")
+            else:
+                yield f"{prefix}{key}"
+
+    for i, arg in enumerate(args):
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif inside and arg == "--params-file" and i + 1 < len(args):
+            try:
+                with open(args[i + 1], encoding="utf-8") as stream:
+                    document = yaml.safe_load(stream)
+            except (OSError, UnicodeDecodeError, yaml.YAMLError):
+                continue
+            if not isinstance(document, dict):
+                continue
+            for name, body in blocks(document, ()):
+                if name in (node_fqn, f"/**/{base}"):
+                    found.update({parameter: args[i + 1] for parameter in names(body)})
+    return found
+
+
+def unknown_params_file_parameters(node: Node, args: Sequence[str]) -> dict[str, str]:
+    """Names a parameter file gives ``node`` in its own block that it does not declare -> the file."""
+    given = params_file_parameters(args, node.get_fully_qualified_name())
+    return {name: path for name, path in given.items()
+            if not node.has_parameter(name) and not name.startswith("qos_overrides.")}
+
+
+def _misspelt(node: Node, names: Sequence[str]) -> str:
+    """``name (did you mean close?)`` for each name, against the node's declared parameters."""
+    import difflib
+
+    declared = sorted(node._parameters)
+    hints = []
+    for name in names:
+        close = difflib.get_close_matches(name, declared, n=1)
+        hints.append(f"{name}" + (f" (did you mean {close[0]}?)" if close else ""))
+    return ", ".join(hints)
+
+
 def steady_timer(node: Node, period_s: float, callback: Callable[[], None]):
     """A timer on the steady clock, whatever ``use_sim_time`` says.
 
@@ -492,15 +560,17 @@ def run_node(
         _apply_command_line_sim_time(node, _command_line)
         unknown = unknown_command_line_parameters(node, _command_line)
         if unknown:
-            import difflib
-
-            declared = sorted(node._parameters)
-            hints = []
-            for name in unknown:
-                close = difflib.get_close_matches(name, declared, n=1)
-                hints.append(f"{name}" + (f" (did you mean {close[0]}?)" if close else ""))
-            raise VesselError(f"{node.get_name()} has no parameter {', '.join(hints)}: `ros2 param list` names "
-                              "them all; fix the -p on the command line")
+            raise VesselError(f"{node.get_name()} has no parameter {_misspelt(node, unknown)}: `ros2 param list` "
+                              "names them all; fix the -p on the command line")
+        unknown_in_files = unknown_params_file_parameters(node, _command_line)
+        if unknown_in_files:  # a stand-in (the replay detector) reads another node's block and ignores its names
+            foreign = getattr(node, "foreign_parameters", frozenset())
+            unknown_in_files = {name: path for name, path in unknown_in_files.items() if name not in foreign}
+        if unknown_in_files:
+            files = ", ".join(sorted(set(unknown_in_files.values())))
+            raise VesselError(f"{node.get_name()} has no parameter {_misspelt(node, sorted(unknown_in_files))}, "
+                              f"given in its block of {files}: `ros2 param list` names them all; fix the "
+                              "parameter file")
         executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
         executor.add_node(node)
         while rclpy.ok() and not getattr(node, "finished", False):

@@ -112,6 +112,13 @@ class ReplayDetectorNode(Node):
         self.create_subscription(VesselTrackArray, ack_topic, self._on_ack, reliable_qos(10))
         steady_timer(self, 0.01, self._pace_self)
 
+    @property
+    def foreign_parameters(self) -> frozenset[str]:
+        """The detector's parameters: standing in for it, this node reads its block of a shared file, ignoring them."""
+        from vessel_detect.detector_params import ALL_PARAMS
+
+        return frozenset(spec.name for spec in ALL_PARAMS)
+
     def _on_ack(self, tracks) -> None:
         if self._awaiting is not None and abs(stamp_to_sec(tracks.header.stamp) - self._awaiting) < 1e-6:
             self._awaiting = None

@@ -142,6 +142,8 @@ def declare_fuser_settings(node) -> FuserSettings:
         float_range = value_range if isinstance(default, float) and value_range is not None else None
         try:
             values[name] = declare_parameter(node, name, default, description, float_range=float_range)
+        except DataError:
+            raise  # declare_parameter's own one-line report, complete as it is
         except Exception as error:  # rclpy's type/range exceptions: report them as a configuration problem
             raise DataError(f"parameter {name}: {error} (default {default!r}); fix the parameter file") from None
     return FuserSettings.from_params(values)

@@ -118,6 +118,8 @@ def declare_tracker_config(node: Node) -> TrackerConfig:
                                                    int_range=_INT_RANGES[f.name])
             else:
                 values[f.name] = declare_parameter(node, f.name, default, description)
+        except DataError:
+            raise  # declare_parameter's own one-line report, complete as it is
         except Exception as error:  # rclpy's type/range exceptions: a configuration problem, reported in one line
             raise DataError(f"tracker parameter {f.name}: {error} (default {default!r}); fix the parameter file") \
                 from None
