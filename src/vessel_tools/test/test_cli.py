@@ -27,8 +27,35 @@ def _every_tool():
 def test_the_help_lists_every_tool_with_the_fitting_ones():
     text = cli.usage()
     for label, tool in _every_tool():
-        assert f"  {label}" in text and tool.summary.split()[0] in text
+        group, _, sub = label.partition(" ")
+        default = isinstance(cli.TOOLS[group], cli.Group) and cli.TOOLS[group].default == sub
+        assert (f"  {group} [{sub}]" if default else f"  {label}") in text and tool.summary.split()[0] in text
     assert "fit distance-model" in text and "fit error-model" in text and "params render" in text
+
+
+def test_the_help_names_every_detect_sub_command():
+    """`./vessel help` once left out `detect rank` and `detect quantize`."""
+    import argparse
+
+    from vessel_detect.detect_cli import build_parser
+
+    choices = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert cli.TOOLS["detect"].usage.split()[0].split("|") == list(choices)
+
+
+@pytest.mark.parametrize("group", [name for name, entry in cli.TOOLS.items() if isinstance(entry, cli.Group)])
+def test_help_after_a_group_lists_its_sub_tools(group, capsys):
+    """`./vessel fit --help` once answered with an error."""
+    assert cli.main([group, "--help"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"  {group} {sub}" in out or f"  {group} [{sub}]" in out for sub in cli.TOOLS[group].tools)
+
+
+def test_help_of_a_sub_tool_given_as_an_option_prints_the_options():
+    """`./vessel bag recover --help` once failed: its --recover took --help as the bag."""
+    done = subprocess.run([sys.executable, "-m", "vessel_tools.cli", "bag", "recover", "--help"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "--recover" in done.stdout and "error" not in done.stderr, done.stderr
 
 
 @pytest.mark.parametrize("argv, module, passed", [

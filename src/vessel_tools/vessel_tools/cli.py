@@ -54,7 +54,8 @@ TOOLS: dict[str, Tool | Group] = {
                         "readable", "BAG [--out NEW]", ("--recover",)),
     }),
     "detect": Tool("vessel_detect.detect_cli", "the detector over a dataset folder; its recall; training labels "
-                   "generated from the GPS; fine-tune the detector on them", "run|recall|export-labels|train ..."),
+                   "generated from the GPS; fine-tune the detector on them; rank against the GPS; int8 quantization",
+                   "run|recall|rank|export-labels|train|quantize ..."),
     "bench": Group({
         "graph": Tool("vessel_tools.bench", "the whole graph's frames/s and latency against the detector core",
                       "[--out FILE.json]"),
@@ -67,10 +68,11 @@ TOOLS: dict[str, Tool | Group] = {
     }, default="graph"),
     "pipeline": Tool("vessel_track.pipeline", "tracker, fuser and target choice without ROS over a detections "
                      "CSV (online or smoothed offline); where the defaults were chosen",
-                     "--videos 7-12 --detections FILE.csv|labels [--leave-one-out 7-12] [--mode offline]"),
+                     "--videos 7-12 --detections FILE.csv|labels --out DIR [--leave-one-out 7-12] [--mode offline]"),
     "fit": Group({
         "distance-model": Tool("vessel_track.distance_model_fit", "refit the box-size distance model and the cue "
-                               "noise into a parameter file (only that block changes)",
+                               "noise into a parameter file (only those values change, and the detector's "
+                               "size_prior.model with them; comments stay)",
                                "--videos 7-12 --out FILE.yaml"),
         "error-model": Tool("vessel_track.error_model_fit", "refit the error model (expected error against "
                             "distance) from scores.csv files into a parameter file", "SCORES.csv --out FILE.yaml"),
@@ -92,13 +94,29 @@ def usage(program: str = "./vessel", header: bool = True) -> str:
     """Every tool, with its sub-tools, what it takes and what it does."""
     lines = [f"usage: {program} TOOL [ARGS]", ""] if header else []
     lines.append(f"Tools ({program} TOOL --help: a tool's options)")
-    for name, entry in TOOLS.items():
-        tools = {f"{name} {sub}": tool for sub, tool in entry.tools.items()} if isinstance(entry, Group) \
-            else {name: entry}
-        for label, tool in tools.items():
-            lines.append(f"  {label} {tool.usage}".rstrip())
-            lines += textwrap.wrap(tool.summary, width=116, initial_indent=" " * 6, subsequent_indent=" " * 6)
+    for name in TOOLS:
+        lines += _tool_lines(name)
     return "\n".join(lines)
+
+
+def _tool_lines(name: str) -> list[str]:
+    """A tool's usage lines (each sub-tool's, for a group; the one run with none named is marked)."""
+    entry = TOOLS[name]
+    tools = {f"{name} {sub}": tool for sub, tool in entry.tools.items()} if isinstance(entry, Group) \
+        else {name: entry}
+    lines = []
+    for label, tool in tools.items():
+        if isinstance(entry, Group) and label == f"{name} {entry.default}":
+            label = f"{name} [{entry.default}]"
+        lines.append(f"  {label} {tool.usage}".rstrip())
+        lines += textwrap.wrap(tool.summary, width=116, initial_indent=" " * 6, subsequent_indent=" " * 6)
+    return lines
+
+
+def group_usage(name: str, program: str = "./vessel") -> str:
+    """A group's sub-tools: what ``./vessel GROUP --help`` prints."""
+    return "\n".join([f"usage: {program} {name} SUBTOOL [ARGS] ({program} {name} SUBTOOL --help: its options)", "",
+                      *_tool_lines(name)])
 
 
 def resolve(argv: Sequence[str]) -> tuple[Tool, list[str]]:
@@ -128,13 +146,19 @@ def main(argv: Sequence[str] | None = None, program: str = "./vessel") -> int:
     if argv[0] == "--list":  # for ./vessel help, after its own commands
         print(usage(program, header=False))
         return 0
+    if isinstance(TOOLS.get(argv[0]), Group) and argv[1:2] in (["-h"], ["--help"]):
+        print(group_usage(argv[0], program))
+        return 0
     try:
         tool, rest = resolve(argv)
     except ValueError as error:
         print(f"error: {error}\n\n{usage(program)}", file=sys.stderr)
         return 2
     module = importlib.import_module(tool.module)
-    return int(module.main([*tool.prefix, *rest]) or 0)
+    prefix = list(tool.prefix)
+    if prefix and prefix[0].startswith("-") and ("-h" in rest or "--help" in rest):
+        prefix = []  # an option standing for the sub-tool (bag recover: --recover BAG) would want its argument
+    return int(module.main([*prefix, *rest]) or 0)
 
 
 def _entry(name: str):
