@@ -1,9 +1,10 @@
-"""``vessel_tools.graph``: how a hot standby is started and promoted (without starting processes)."""
+"""``vessel_tools.graph``: how a hot standby is started and promoted (no processes); a camera and detector alone."""
 
 from __future__ import annotations
 
 import signal
 
+import pytest
 import yaml
 
 from vessel_tools import graph
@@ -56,3 +57,19 @@ def test_a_spare_gets_its_nodes_blocks_under_its_namespaced_name(tmp_path, monke
     runner.repeat_promotions()  # in case it was still starting and ignored the first
     assert spare.process.signals == [signal.SIGUSR1, signal.SIGUSR1]
     assert runner.promote_spare("fuser") is None  # no spare left until a new one is started
+
+
+@pytest.mark.ros
+def test_a_camera_and_detector_alone_start_at_once_with_no_wait(ros_env, tmp_path):
+    """`--nodes camera,detector` waits for a tracker elsewhere; `--no-wait` runs the two alone to the source's end."""
+    import subprocess
+    import sys
+
+    from vessel_detect import synthetic
+
+    synthetic.write_bag(tmp_path / "bag", frames=4)
+    run = subprocess.run([sys.executable, "-m", "vessel_tools.graph", "--source", str(tmp_path / "bag"), "--nodes",
+                          "camera,detector", "--no-wait", "--exit-at-end", "--connect-timeout", "1", "--log-dir",
+                          str(tmp_path / "logs")], env=ros_env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "started camera" in run.stderr and "did not connect" not in run.stderr

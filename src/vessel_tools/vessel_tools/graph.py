@@ -382,6 +382,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--connect-timeout", type=float, default=60.0,
                         help="seconds to wait for every link of the graph to be matched before the camera starts "
                         "(frames sent earlier would be lost)")
+    parser.add_argument("--no-wait", action="store_true",
+                        help="start the camera at once, without waiting for the links (frames sent before a reader "
+                        "matched are lost): e.g. --nodes camera,detector with no tracker anywhere yet")
     return parser.parse_args(argv)
 
 
@@ -423,7 +426,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 spare = runner.start_spare(name)
                 print(f"[graph] started {spare.namespace}/{name}: its hot standby", file=sys.stderr)
         if "camera" in wanted:
-            if set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
+            if args.no_wait:
+                print("[graph] --no-wait: the camera starts before its readers have matched", file=sys.stderr)
+            elif set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
                 watcher = GraphWatcher()
                 try:
                     wait_until_connected(runner, watcher, args.connect_timeout, "see the nodes' output above",
