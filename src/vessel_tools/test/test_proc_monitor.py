@@ -32,6 +32,11 @@ def _wait_for(predicate, timeout_s=10.0):
     return predicate()
 
 
+def _runs_fake_node(pid: int) -> bool:
+    command = proc_monitor.process_cmdline(pid)
+    return len(command) >= 2 and Path(command[1]).name == "fake_node"
+
+
 def test_node_pid_is_the_console_script_process_or_the_child_of_a_wrapper(tmp_path):
     script = tmp_path / "fake_node"
     script.write_text(f"#!{sys.executable}\nimport time\ntime.sleep(30)\n")
@@ -43,10 +48,11 @@ def test_node_pid_is_the_console_script_process_or_the_child_of_a_wrapper(tmp_pa
     wrapped = subprocess.Popen([str(wrapper)])
     try:
         assert proc_monitor.node_pid(direct.pid, "fake_node") == direct.pid
-        assert Path(proc_monitor.process_cmdline(direct.pid)[1]).name == "fake_node"
+        # Until the kernel has run the shebang's interpreter, /proc/PID/cmdline is empty or the parent's.
+        assert _wait_for(lambda: _runs_fake_node(direct.pid))
         assert _wait_for(lambda: proc_monitor.node_pid(wrapped.pid, "fake_node") != wrapped.pid)
         child = proc_monitor.node_pid(wrapped.pid, "fake_node")
-        assert Path(proc_monitor.process_cmdline(child)[1]).name == "fake_node"
+        assert _wait_for(lambda: _runs_fake_node(child))
     finally:
         child = proc_monitor.node_pid(wrapped.pid, "fake_node")
         if child != wrapped.pid:
