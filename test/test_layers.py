@@ -2,7 +2,8 @@
 
 Layers, lowest first (a module may import its own layer and those below):
 
-- ``common``: errors, paths, serialized imports, state files, the command-line tail (package ``vessel_common``),
+- ``common``: errors, paths, serialized imports, state files, the command-line tail, parameter names (package
+  ``vessel_common``),
   geodesy, the packages' ``__init__``;
 - ``core``: ROS-free runtime code: camera model, parameter files, detector and its decoding, tracker, fusion,
   selection, smoothing, the runtime halves of the distance and error models;
@@ -30,7 +31,8 @@ ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_in
 
 _BY_LAYER = {
     "common": """vessel_common vessel_common.errors vessel_common.imports vessel_common.paths vessel_common.state_file
-                 vessel_common.command_line vessel_calib vessel_calib.geodesy vessel_detect vessel_detect.training
+                 vessel_common.command_line vessel_common.parameter_names vessel_calib vessel_calib.geodesy
+                 vessel_detect vessel_detect.training
                  vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks

@@ -328,18 +328,6 @@ def _same_document(a: Any, b: Any) -> bool:
     return yaml.safe_dump(a, sort_keys=True) == yaml.safe_dump(b, sort_keys=True)
 
 
-def flatten(params: Mapping[str, Any], prefix: str = "") -> dict:
-    """Nested mapping -> ``{"a.b": value}``, as ROS names parameters (``camera: {H: ...}`` -> ``camera.H``)."""
-    out = {}
-    for key, value in params.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
-
-
 def read_params_yaml(path) -> dict:
     """Parse a ROS parameter YAML into ``{node: {param: value}}`` (the ``ros__parameters`` contents)."""
     path = Path(path)

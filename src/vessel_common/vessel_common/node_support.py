@@ -32,6 +32,7 @@ from rclpy.qos import (
 
 from vessel_common.errors import DataError, VesselError
 from vessel_common.imports import import_serialized
+from vessel_common.parameter_names import flatten
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
@@ -91,6 +92,19 @@ def command_line_parameters(args: Sequence[str], node_name: str) -> dict[str, st
     a ROS user who types ``-p`` expects it to win, so ``declare_parameter`` applies them last.
     """
     found: dict[str, str] = {}
+    for assignment in _ros_arguments(args, ("-p", "--param")):
+        if ":=" not in assignment:
+            continue
+        name, value = assignment.split(":=", 1)
+        target, _, bare = name.rpartition(":")
+        if target and target.lstrip("/") != node_name:
+            continue
+        found[bare] = value
+    return found
+
+
+def _ros_arguments(args: Sequence[str], options: tuple[str, ...]):
+    """The argument after each of ``options`` inside the ``--ros-args`` parts of ``args`` (up to ``--``)."""
     inside = False
     args = list(args)
     for i, arg in enumerate(args):
@@ -98,13 +112,8 @@ def command_line_parameters(args: Sequence[str], node_name: str) -> dict[str, st
             inside = True
         elif arg == "--":
             inside = False
-        elif inside and arg in ("-p", "--param") and i + 1 < len(args) and ":=" in args[i + 1]:
-            name, value = args[i + 1].split(":=", 1)
-            target, _, bare = name.rpartition(":")
-            if target and target.lstrip("/") != node_name:
-                continue
-            found[bare] = value
-    return found
+        elif inside and arg in options and i + 1 < len(args):
+            yield args[i + 1]
 
 
 def _command_line_value(name: str, text: str) -> Any:
@@ -189,7 +198,11 @@ def _apply_command_line_sim_time(node: Node, args: Sequence[str]) -> None:
 
 def unknown_command_line_parameters(node: Node, args: Sequence[str]) -> list[str]:
     """``-p`` names given for ``node`` that it does not declare (a misspelling would otherwise pass silently)."""
-    names = command_line_parameters(args, node.get_name())
+    return _undeclared(node, command_line_parameters(args, node.get_name()))
+
+
+def _undeclared(node: Node, names) -> list[str]:
+    """The ``names`` the node does not declare (``qos_overrides.*`` are rcl's, read when a publisher is made)."""
     return [name for name in names if not node.has_parameter(name) and not name.startswith("qos_overrides.")]
 
 
@@ -204,8 +217,6 @@ def params_file_parameters(args: Sequence[str], node_fqn: str) -> dict[str, str]
 
     base = node_fqn.rsplit("/", 1)[-1]
     found: dict[str, str] = {}
-    inside = False
-    args = list(args)
 
     def blocks(mapping: Any, parts: tuple[str, ...]):
         for key, body in mapping.items():
@@ -216,37 +227,29 @@ def params_file_parameters(args: Sequence[str], node_fqn: str) -> dict[str, str]
             else:
                 yield from blocks(body, parts + tuple(p for p in str(key).split("/") if p))
 
-    def names(mapping: dict, prefix: str = ""):
-        for key, value in mapping.items():
-            if isinstance(value, dict):
-                yield from names(value, f"{prefix}{key}.")
-            else:
-                yield f"{prefix}{key}"
-
-    for i, arg in enumerate(args):
-        if arg == "--ros-args":
-            inside = True
-        elif arg == "--":
-            inside = False
-        elif inside and arg == "--params-file" and i + 1 < len(args):
-            try:
-                with open(args[i + 1], encoding="utf-8") as stream:
-                    document = yaml.safe_load(stream)
-            except (OSError, UnicodeDecodeError, yaml.YAMLError):
-                continue
-            if not isinstance(document, dict):
-                continue
-            for name, body in blocks(document, ()):
-                if name in (node_fqn, f"/**/{base}"):
-                    found.update({parameter: args[i + 1] for parameter in names(body)})
+    for path in _ros_arguments(args, ("--params-file",)):
+        try:
+            with open(path, encoding="utf-8") as stream:
+                document = yaml.safe_load(stream)
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            continue
+        if not isinstance(document, dict):
+            continue
+        for name, body in blocks(document, ()):
+            if name in (node_fqn, f"/**/{base}"):
+                found.update(dict.fromkeys(flatten(body), path))
     return found
 
 
 def unknown_params_file_parameters(node: Node, args: Sequence[str]) -> dict[str, str]:
-    """Names a parameter file gives ``node`` in its own block that it does not declare -> the file."""
+    """Names a parameter file gives ``node`` in its own block that it does not declare -> the file.
+
+    A stand-in for another node (the replay detector) reads that node's block and names what it ignores there in
+    ``foreign_parameters``.
+    """
     given = params_file_parameters(args, node.get_fully_qualified_name())
-    return {name: path for name, path in given.items()
-            if not node.has_parameter(name) and not name.startswith("qos_overrides.")}
+    foreign = getattr(node, "foreign_parameters", frozenset()) if given else frozenset()
+    return {name: given[name] for name in _undeclared(node, given) if name not in foreign}
 
 
 def _misspelt(node: Node, names: Sequence[str]) -> str:
@@ -563,9 +566,6 @@ def run_node(
             raise VesselError(f"{node.get_name()} has no parameter {_misspelt(node, unknown)}: `ros2 param list` "
                               "names them all; fix the -p on the command line")
         unknown_in_files = unknown_params_file_parameters(node, _command_line)
-        if unknown_in_files:  # a stand-in (the replay detector) reads another node's block and ignores its names
-            foreign = getattr(node, "foreign_parameters", frozenset())
-            unknown_in_files = {name: path for name, path in unknown_in_files.items() if name not in foreign}
         if unknown_in_files:
             files = ", ".join(sorted(set(unknown_in_files.values())))
             raise VesselError(f"{node.get_name()} has no parameter {_misspelt(node, sorted(unknown_in_files))}, "

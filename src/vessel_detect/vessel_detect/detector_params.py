@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from vessel_calib.camera_model import CameraModel
-from vessel_calib.params import camera_block, flatten, node_blocks, read_params_yaml
+from vessel_calib.params import camera_block, node_blocks, read_params_yaml
 from vessel_common.errors import ModelError, VesselError
+from vessel_common.parameter_names import flatten
 from vessel_common.paths import in_repo
 from vessel_detect.appearance_model import (
     COMBINE_MODES,

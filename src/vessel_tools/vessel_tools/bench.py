@@ -40,9 +40,9 @@ import yaml
 
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
-from vessel_calib.params import flatten
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
+from vessel_common.parameter_names import flatten
 from vessel_common.paths import default_data_dir, parse_videos
 from vessel_detect.bag_build import BuildOptions, build_from_dataset
 from vessel_detect.bag_io import BagReader

@@ -24,10 +24,10 @@ import yaml
 from vessel_calib.params import read_params_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
+from vessel_common.parameter_names import flatten
 from vessel_common.paths import repo_root
 from vessel_common.state_file import remove_state_file
 from vessel_tools.graph_watcher import GraphWatcher
-from vessel_track.fuser_settings import flatten
 from vessel_track.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,

@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from vessel_calib.params import flatten, node_blocks, read_params_yaml
+from vessel_calib.params import node_blocks, read_params_yaml
 from vessel_calib.water_level import load_water_level
 from vessel_common.errors import DataError
+from vessel_common.parameter_names import flatten
 from vessel_track.distance_model import BoxSizeDistanceModel
 from vessel_track.error_model import ErrorModel
 from vessel_track.fusion import CueStatistics, FusionConfig

@@ -11,8 +11,9 @@ from pathlib import Path
 
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import CalibrationError, DataError
+from vessel_common.parameter_names import flatten
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS
-from vessel_track.fuser_settings import FUSION_ANCHOR_MOVED, FuserSettings, flatten
+from vessel_track.fuser_settings import FUSION_ANCHOR_MOVED, FuserSettings
 
 _INF = 1.0e12
 
