@@ -36,8 +36,9 @@ _BY_LAYER = {
                  vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
-               vessel_detect.image_codec vessel_detect.appearance_model vessel_detect.size_prior vessel_detect.detector
-               vessel_detect.model_store vessel_detect.detector_params vessel_detect.detections_csv
+               vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
+               vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
+               vessel_detect.detections_csv
                vessel_detect.recall vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings""",

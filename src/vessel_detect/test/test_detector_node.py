@@ -195,11 +195,17 @@ def test_detector_node_detects_on_a_real_frame_counts_bad_frames_and_keeps_runni
     assert log.count("does not decode") == 1  # logged once per kind
 
 
-def test_with_two_images_waiting_two_sent_back_to_back_are_both_detected(start_node, probe, data_dir, model_path):
-    """``images_waiting`` 2 (a replay with the camera's ``frames_in_flight`` 2): neither image replaces the other."""
+@pytest.mark.parametrize("decode_ahead", ["true", "false"])
+def test_with_two_images_waiting_two_sent_back_to_back_are_both_detected(start_node, probe, data_dir, model_path,
+                                                                          decode_ahead):
+    """``images_waiting`` 2 (a replay with the camera's ``frames_in_flight`` 2): neither image replaces the other.
+
+    With and without the decode-ahead thread; reliable images, so that the transport loses none of the pair.
+    """
     jpeg = (data_dir / "frames" / FRAME[0] / FRAME[1]).read_bytes()
     node = start_node("vessel_detect", "detector", "--ros-args", "--params-file", str(PARAMS_FILE),
-                      "--params-file", str(CALIBRATION), "-p", f"model_path:={model_path}", "-p", "images_waiting:=2")
+                      "--params-file", str(CALIBRATION), "-p", f"model_path:={model_path}", "-p", "images_waiting:=2",
+                      "-p", f"decode_ahead:={decode_ahead}", "-p", "image_qos:=reliable")
     assert probe.wait(lambda: probe.compressed.get_subscription_count() > 0
                       and probe.node.count_publishers("/vessel/detections") > 0, 90.0), node.output()
     for sec in range(1_601_495_000, 1_601_495_030):  # until the first is answered (matching takes a while)

@@ -7,9 +7,12 @@ the box centre and size in full-resolution pixels and one hypothesis: ``class_id
 
 Inference runs in a worker thread on the newest image only: when images arrive faster than the detector runs,
 the ones it cannot take are skipped and counted (``dropped_frames``), so the output never lags behind a live
-camera. Bad images (unsupported encoding, size 0, undecodable bytes) are logged once per kind, counted and
-skipped. Latency, rates and counts go to ``/diagnostics``. A missing or corrupt model stops the node at start
-with one ``error:`` line (exit status 2).
+camera. With ``decode_ahead`` a second thread decodes the next waiting image while the network runs on the
+current one, so the JPEG decode does not add to the time per frame (at most one image is decoded ahead per
+processed frame, so a camera faster than the detector costs at most one wasted decode per frame). Bad images
+(unsupported encoding, size 0, undecodable bytes) are logged once per kind, counted and skipped. Latency, rates
+and counts go to ``/diagnostics``. A missing or corrupt model stops the node at start with one ``error:`` line
+(exit status 2).
 
     ros2 run vessel_detect detector --ros-args --params-file config/aitas.yaml
     ros2 run vessel_detect detector --ros-args -p mode:=band -p score_threshold:=0.3 -p publish_annotated:=true
@@ -46,12 +49,20 @@ from vessel_common.node_support import (
 from vessel_detect.detector import Detections, annotate
 from vessel_detect.detector_params import ALL_PARAMS, NODE_NAME, build_detector
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
+from vessel_detect.image_queue import ImageQueue, WaitingImage
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
 PROBLEM_KINDS = ("bad_encoding", "empty_image", "bad_image_size", "wrong_image_size", "undecodable_image",
                  "detector_error")
 EVENT_KINDS = ("frames_received", "frames_processed", "dropped_frames", "detections_published")
 LATENCY_WINDOW = 200
+
+
+def _decoded(kind: str, message) -> np.ndarray:
+    """The BGR pixels of a ``CompressedImage`` (``kind`` "compressed") or an ``Image`` ("raw"); ImageError if bad."""
+    if kind == "compressed":
+        return compressed_to_bgr(message.data, message.format)
+    return image_to_bgr(message.encoding, message.height, message.width, message.step, message.data)
 
 
 def detections_to_msg(detections: Detections, header, target_class: str = "") -> Detection2DArray:
@@ -128,6 +139,8 @@ class _DetectorPhases:
         self.annotated_pub = None
         self._image_subscriptions = []
         self._worker = None
+        self._decoder = None
+        self._queue: ImageQueue | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.health = NodeHealth(self, hardware_id="detector")
         for kind in PROBLEM_KINDS + EVENT_KINDS:
@@ -135,9 +148,6 @@ class _DetectorPhases:
         for key in ("latency_ms_last", "latency_ms_p50", "latency_ms_p95", "input_to_output_ms_p50",
                     "frames_per_s", "windows_per_frame", "detections_last"):
             self.health.set_value(key, float("nan"))
-        self._lock = threading.Condition()
-        self._waiting: deque[tuple[str, object, float]] = deque()
-        self._stop = False
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._end_to_end: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._processed_times: deque[float] = deque(maxlen=LATENCY_WINDOW)
@@ -167,11 +177,12 @@ class _DetectorPhases:
         if values["subscribe_raw"]:
             self._image_subscriptions.append(self.create_subscription(
                 Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
-        with self._lock:
-            self._stop = False
-            self._waiting.clear()
-        self._worker = threading.Thread(target=self._work, name="detector-worker", daemon=True)
+        self._queue = queue = ImageQueue(int(values["images_waiting"]), _decoded)
+        self._worker = threading.Thread(target=self._work, args=(queue,), name="detector-worker", daemon=True)
         self._worker.start()
+        if values["decode_ahead"]:
+            self._decoder = threading.Thread(target=queue.decode_ahead, name="detector-decode-ahead", daemon=True)
+            self._decoder.start()
         topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
         topics += [values["raw_topic"]] if values["subscribe_raw"] else []
         config = self.detector.config
@@ -221,32 +232,22 @@ class _DetectorPhases:
     # ------------------------------------------------------------------------------------------------ input
     def _on_image(self, kind: str, message) -> None:
         """Keep the newest ``images_waiting`` images; an older one the worker did not take yet is dropped, counted."""
-        received = time.monotonic()
-        with self._lock:
-            self.health.count("frames_received")
-            while len(self._waiting) >= self.values["images_waiting"]:
-                self._waiting.popleft()
-                self.health.count("dropped_frames")
-            self._waiting.append((kind, message, received))
-            self._lock.notify()
-
-    def _take(self) -> tuple[str, object, float] | None:
-        with self._lock:
-            while not self._waiting and not self._stop:
-                self._lock.wait(0.5)
-            if self._stop:
-                return None
-            return self._waiting.popleft()
+        queue = self._queue
+        if queue is None:
+            return
+        self.health.count("frames_received")
+        dropped = queue.put(kind, message, time.monotonic())
+        if dropped:
+            self.health.count("dropped_frames", dropped)
 
     # ------------------------------------------------------------------------------------------------ worker
-    def _work(self) -> None:
+    def _work(self, queue: ImageQueue) -> None:
         while True:
-            item = self._take()
+            item = queue.take()
             if item is None:
                 return
-            kind, message, received = item
             try:
-                self._process(kind, message, received)
+                self._process(item)
             except ImageError as error:
                 self.health.problem(error.kind, f"bad image skipped: {error}")
             except VesselError as error:
@@ -255,12 +256,10 @@ class _DetectorPhases:
                 self.health.problem("detector_error", f"frame skipped after an unexpected {type(error).__name__}: "
                                     f"{error}")
 
-    def _process(self, kind: str, message, received: float) -> None:
+    def _process(self, item: WaitingImage) -> None:
         started = time.monotonic()
-        if kind == "compressed":
-            bgr = compressed_to_bgr(message.data, message.format)
-        else:
-            bgr = image_to_bgr(message.encoding, message.height, message.width, message.step, message.data)
+        message, received = item.message, item.received
+        bgr = item.pixels()
         height, width = bgr.shape[:2]
         in_image_pixels = self.detector.detect(bgr)
         detections = in_image_pixels.in_calibrated_pixels((width, height), self.detector.reference_wh)
@@ -303,12 +302,12 @@ class _DetectorPhases:
 
     def close(self) -> None:
         """Stop the worker thread (called by run_node at shutdown, and when a managed node deactivates)."""
-        with self._lock:
-            self._stop = True
-            self._lock.notify_all()
-        if self._worker is not None and self._worker.is_alive():
-            self._worker.join(timeout=5.0)
-        self._worker = None
+        if self._queue is not None:
+            self._queue.stop()
+        for thread in (self._worker, self._decoder):
+            if thread is not None and thread.is_alive():
+                thread.join(timeout=5.0)
+        self._worker = self._decoder = self._queue = None
 
 
 class DetectorNode(_DetectorPhases, Node):

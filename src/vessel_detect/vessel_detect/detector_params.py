@@ -151,6 +151,9 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               "dropped (counted). 1 = only the newest (live cameras); 2 for a replay whose camera has "
               "frames_in_flight 2, so that two images arriving back to back are both detected.",
               int_range=(1, 2), read_only=True),
+    ParamSpec("decode_ahead", True, "Decode the next waiting image in a second thread while the network runs on "
+              "the current one (at most one ahead per processed image); false: the worker decodes each image "
+              "itself, one thread.", read_only=True),
     ParamSpec("detections_topic", "/vessel/detections", "Detection2DArray output topic (reliable).",
               read_only=True),
     ParamSpec("detections_qos_depth", 10, "History depth of the detections publisher.", int_range=(1, 1000),

@@ -1,0 +1,121 @@
+"""The images waiting for the detector's network: the newest kept, the next one decoded ahead.
+
+The detector node's subscription callbacks ``put`` each image; its worker thread ``take``s them, oldest first, and
+gets the pixels from ``WaitingImage.pixels``. Beyond ``capacity`` the oldest waiting image is dropped, so the
+output never lags behind a live camera. With a decode-ahead thread running ``decode_ahead``, the image the worker
+will take next is decoded while the worker runs the network on the current one, so decoding does not add to the
+time per frame. It decodes at most one image per image taken, so a camera faster than the detector wastes at most
+one decode per processed image (the one decoded ahead and then replaced by a newer image). A decode error is kept
+with its image and raised to the worker when it asks for the pixels, as if the worker had decoded it.
+
+ROS-free: ``decode`` is any function ``(kind, message) -> pixels`` that raises on a bad image.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+WAITING, DECODING, TAKEN = "waiting", "decoding", "taken"
+
+
+class WaitingImage:
+    """An image waiting for the worker, and its pixels once the decode-ahead thread has decoded them.
+
+    ``state``: ``waiting``; then ``decoding`` (the decode-ahead thread took it; ``done`` is set when its pixels or
+    its error are there) or ``taken`` (the worker decodes it itself). Changed under the queue's lock.
+    """
+
+    __slots__ = ("kind", "message", "received", "state", "_decode", "_pixels", "_error", "_done")
+
+    def __init__(self, kind: str, message: Any, received: float, decode: Callable[[str, Any], Any]) -> None:
+        self.kind, self.message, self.received = kind, message, received
+        self.state = WAITING
+        self._decode = decode
+        self._pixels = None
+        self._error: Exception | None = None
+        self._done = threading.Event()
+
+    def pixels(self):
+        """The decoded image: decoded here unless the decode-ahead thread did it (its error raised here)."""
+        if self.state == TAKEN:
+            return self._decode(self.kind, self.message)
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+        return self._pixels
+
+    def _decode_now(self) -> None:
+        try:
+            self._pixels = self._decode(self.kind, self.message)
+        except Exception as error:  # raised to the worker by pixels(), which counts it as the worker always did
+            self._error = error
+        finally:
+            self._done.set()
+
+
+class ImageQueue:
+    """At most ``capacity`` images waiting, oldest dropped first; see the module docstring."""
+
+    def __init__(self, capacity: int, decode: Callable[[str, Any], Any]) -> None:
+        if capacity < 1:
+            raise ValueError(f"an image queue holds at least one image, got capacity {capacity}")
+        self.capacity = capacity
+        self._decode = decode
+        self._lock = threading.Condition()
+        self._waiting: deque[WaitingImage] = deque()
+        self._stopped = False
+        self._ahead_allowed = False
+
+    def put(self, kind: str, message: Any, received: float) -> int:
+        """Add an image; returns how many older images were dropped to make room for it."""
+        with self._lock:
+            dropped = 0
+            while len(self._waiting) >= self.capacity:
+                self._waiting.popleft()
+                dropped += 1
+            self._waiting.append(WaitingImage(kind, message, received, self._decode))
+            self._lock.notify_all()
+            return dropped
+
+    def take(self) -> WaitingImage | None:
+        """The oldest waiting image, waiting for one; None once stopped. Allows one more decode ahead."""
+        with self._lock:
+            while not self._waiting and not self._stopped:
+                self._lock.wait(0.5)
+            if self._stopped:
+                return None
+            image = self._waiting.popleft()
+            if image.state == WAITING:
+                image.state = TAKEN
+            self._ahead_allowed = True
+            self._lock.notify_all()
+            return image
+
+    def decode_ahead(self) -> None:
+        """The decode-ahead thread's loop: decode the next image to be taken, once per image taken; until stopped."""
+        while True:
+            with self._lock:
+                while not self._stopped and not (self._ahead_allowed and self._waiting
+                                                 and self._waiting[0].state == WAITING):
+                    self._lock.wait(0.5)
+                if self._stopped:
+                    return
+                image = self._waiting[0]
+                image.state = DECODING
+                self._ahead_allowed = False
+            image._decode_now()
+
+    def waiting(self) -> int:
+        """How many images wait."""
+        with self._lock:
+            return len(self._waiting)
+
+    def stop(self) -> None:
+        """Wake and end ``take`` and ``decode_ahead``; waiting images are forgotten."""
+        with self._lock:
+            self._stopped = True
+            self._waiting.clear()
+            self._lock.notify_all()
