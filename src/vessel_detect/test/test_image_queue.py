@@ -35,15 +35,21 @@ def wait_until(predicate, timeout_s: float = 10.0) -> bool:
     return predicate()
 
 
-@pytest.fixture
-def ahead():
-    """A queue of capacity 1 with its decode-ahead thread running."""
+def decoding_ahead(capacity: int = 1):
+    """A queue with its decode-ahead thread running, the decoder, and the thread."""
     decoder = Decoder()
-    queue = ImageQueue(1, decoder)
+    queue = ImageQueue(capacity, decoder)
     thread = threading.Thread(target=queue.decode_ahead, daemon=True)
     thread.start()
+    return queue, decoder, thread
+
+
+@pytest.fixture
+def queue_decoding_ahead():
+    queue, decoder, thread = decoding_ahead()
     yield queue, decoder
     queue.stop()
+    decoder.gate.set()
     thread.join(5.0)
     assert not thread.is_alive()
 
@@ -65,8 +71,8 @@ def test_two_waiting_keeps_both_in_order():
     assert [queue.take().message for _ in range(2)] == ["b", "c"]
 
 
-def test_the_next_image_is_decoded_ahead_while_the_worker_works_and_not_decoded_again(ahead):
-    queue, decoder = ahead
+def test_the_next_image_is_decoded_ahead_while_the_worker_works_and_not_decoded_again(queue_decoding_ahead):
+    queue, decoder = queue_decoding_ahead
     queue.put("compressed", "a", 0.0)
     first = queue.take()  # nothing waits behind it: nothing is decoded ahead yet
     queue.put("compressed", "b", 1.0)
@@ -77,38 +83,58 @@ def test_the_next_image_is_decoded_ahead_while_the_worker_works_and_not_decoded_
     assert decoder.calls == ["b", "a"]  # b once, by the decode-ahead thread
 
 
-def test_at_most_one_image_is_decoded_ahead_per_image_taken(ahead):
-    queue, decoder = ahead
+def test_with_two_waiting_one_is_decoded_ahead_per_image_taken_oldest_first():
+    queue, decoder, thread = decoding_ahead(capacity=2)
+    try:
+        queue.put("compressed", "a", 0.0)
+        queue.take()
+        queue.put("compressed", "b", 0.0)
+        queue.put("compressed", "c", 0.0)
+        assert wait_until(lambda: decoder.calls == ["b"])
+        assert queue.take().pixels() == "pixels of b"  # the one decoded ahead: the oldest, taken next
+        assert wait_until(lambda: decoder.calls == ["b", "c"])  # taking b allowed one more
+        assert queue.take().pixels() == "pixels of c" and decoder.calls == ["b", "c"]
+    finally:
+        queue.stop()
+        thread.join(5.0)
+
+
+def test_at_most_one_image_is_decoded_ahead_per_image_taken(queue_decoding_ahead):
+    queue, decoder = queue_decoding_ahead
     queue.put("compressed", "a", 0.0)
     queue.take()
-    for message in ("b", "c", "d"):  # a camera faster than the detector: each replaces the one before
+    queue.put("compressed", "b", 0.0)
+    assert wait_until(lambda: decoder.calls == ["b"])
+    for message in ("c", "d"):  # a camera faster than the detector: each replaces the one before
         queue.put("compressed", message, 0.0)
-        time.sleep(0.05)
+    time.sleep(0.1)  # time for a wrong second decode ahead to show
     assert decoder.calls == ["b"]  # c and d wait undecoded; the worker decodes the one it takes
     image = queue.take()
     assert image.message == "d" and image.state == TAKEN and image.pixels() == "pixels of d"
+    assert decoder.calls == ["b", "d"]
 
 
-def test_the_worker_waits_for_a_decode_under_way_instead_of_decoding_twice(ahead):
-    queue, decoder = ahead
+def test_the_worker_waits_for_a_decode_under_way_instead_of_decoding_twice(queue_decoding_ahead):
+    queue, decoder = queue_decoding_ahead
     queue.put("compressed", "a", 0.0)
     queue.take()
     decoder.gate.clear()
     queue.put("compressed", "b", 0.0)
     assert wait_until(lambda: decoder.calls == ["b"])
     image = queue.take()
+    assert image.state == DECODING
     result = []
     worker = threading.Thread(target=lambda: result.append(image.pixels()))
     worker.start()
-    time.sleep(0.05)
-    assert result == []  # still decoding
+    worker.join(0.1)
+    assert worker.is_alive() and result == []  # still decoding
     decoder.gate.set()
     worker.join(5.0)
     assert result == ["pixels of b"] and decoder.calls == ["b"]
 
 
-def test_a_decode_error_ahead_reaches_the_worker_as_if_it_had_decoded_the_image(ahead):
-    queue, decoder = ahead
+def test_a_decode_error_ahead_reaches_the_worker_as_if_it_had_decoded_the_image(queue_decoding_ahead):
+    queue, decoder = queue_decoding_ahead
     queue.put("compressed", "a", 0.0)
     queue.take()
     queue.put("compressed", "bad", 0.0)
@@ -116,17 +142,39 @@ def test_a_decode_error_ahead_reaches_the_worker_as_if_it_had_decoded_the_image(
     image = queue.take()
     with pytest.raises(ValueError, match="bad bytes"):
         image.pixels()
+    assert decoder.calls == ["bad"]  # raised from the decode done ahead, not from a second one
 
 
-def test_stop_ends_a_waiting_take():
-    queue = ImageQueue(1, Decoder())
+def test_stop_during_a_decode_ahead_still_hands_the_worker_its_image_and_ends_the_thread():
+    queue, decoder, thread = decoding_ahead()
+    queue.put("compressed", "a", 0.0)
+    queue.take()
+    decoder.gate.clear()
+    queue.put("compressed", "b", 0.0)
+    assert wait_until(lambda: decoder.calls == ["b"])
+    image = queue.take()
+    assert queue.stop() == 0
+    decoder.gate.set()
+    assert image.pixels() == "pixels of b"
+    thread.join(5.0)
+    assert not thread.is_alive()
+
+
+def test_stop_wakes_a_waiting_take_drops_what_waits_and_refuses_new_images():
+    queue = ImageQueue(2, Decoder())
     taken = []
     worker = threading.Thread(target=lambda: taken.append(queue.take()))
     worker.start()
     time.sleep(0.05)
-    queue.stop()
+    started = time.monotonic()
+    assert queue.stop() == 0
     worker.join(5.0)
-    assert taken == [None]
+    assert taken == [None] and time.monotonic() - started < 0.4  # woken, not found by the 0.5 s re-check
+    stopped = ImageQueue(2, Decoder())
+    stopped.put("raw", "a", 0.0)
+    stopped.put("raw", "b", 0.0)
+    assert stopped.stop() == 2  # counted as dropped by the node
+    assert stopped.put("raw", "c", 0.0) == 1 and stopped.take() is None
 
 
 def test_a_queue_holds_at_least_one_image():

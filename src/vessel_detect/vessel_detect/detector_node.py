@@ -8,8 +8,9 @@ the box centre and size in full-resolution pixels and one hypothesis: ``class_id
 Inference runs in a worker thread on the newest image only: when images arrive faster than the detector runs,
 the ones it cannot take are skipped and counted (``dropped_frames``), so the output never lags behind a live
 camera. With ``decode_ahead`` a second thread decodes the next waiting image while the network runs on the
-current one, so the JPEG decode does not add to the time per frame (at most one image is decoded ahead per
-processed frame, so a camera faster than the detector costs at most one wasted decode per frame). Bad images
+current one, so the JPEG decode does not add to the time per frame when images queue up (a replay as fast as the
+detector goes). At most one image is decoded ahead per processed frame, so a camera faster than the detector costs
+at most one wasted decode per frame; the diagnostics' ``latency_ms_*`` leave out a decode done ahead. Bad images
 (unsupported encoding, size 0, undecodable bytes) are logged once per kind, counted and skipped. Latency, rates
 and counts go to ``/diagnostics``. A missing or corrupt model stops the node at start with one ``error:`` line
 (exit status 2).
@@ -49,7 +50,7 @@ from vessel_common.node_support import (
 from vessel_detect.detector import Detections, annotate
 from vessel_detect.detector_params import ALL_PARAMS, NODE_NAME, build_detector
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
-from vessel_detect.image_queue import ImageQueue, WaitingImage
+from vessel_detect.image_queue import ImageQueue, QueuedImage
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
 PROBLEM_KINDS = ("bad_encoding", "empty_image", "bad_image_size", "wrong_image_size", "undecodable_image",
@@ -139,7 +140,7 @@ class _DetectorPhases:
         self.annotated_pub = None
         self._image_subscriptions = []
         self._worker = None
-        self._decoder = None
+        self._decode_ahead_thread = None
         self._queue: ImageQueue | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.health = NodeHealth(self, hardware_id="detector")
@@ -171,18 +172,19 @@ class _DetectorPhases:
     def _activate(self) -> None:
         values = self.values
         qos = image_qos_profile(values["image_qos"])
+        self._queue = queue = ImageQueue(int(values["images_waiting"]), _decoded)
+        self._worker = threading.Thread(target=self._work, args=(queue,), name="detector-worker", daemon=True)
+        self._worker.start()
+        if values["decode_ahead"]:
+            self._decode_ahead_thread = threading.Thread(target=queue.decode_ahead, name="detector-decode-ahead",
+                                                         daemon=True)
+            self._decode_ahead_thread.start()
         if values["subscribe_compressed"]:
             self._image_subscriptions.append(self.create_subscription(
                 CompressedImage, values["compressed_topic"], lambda m: self._on_image("compressed", m), qos))
         if values["subscribe_raw"]:
             self._image_subscriptions.append(self.create_subscription(
                 Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
-        self._queue = queue = ImageQueue(int(values["images_waiting"]), _decoded)
-        self._worker = threading.Thread(target=self._work, args=(queue,), name="detector-worker", daemon=True)
-        self._worker.start()
-        if values["decode_ahead"]:
-            self._decoder = threading.Thread(target=queue.decode_ahead, name="detector-decode-ahead", daemon=True)
-            self._decoder.start()
         topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
         topics += [values["raw_topic"]] if values["subscribe_raw"] else []
         config = self.detector.config
@@ -256,7 +258,7 @@ class _DetectorPhases:
                 self.health.problem("detector_error", f"frame skipped after an unexpected {type(error).__name__}: "
                                     f"{error}")
 
-    def _process(self, item: WaitingImage) -> None:
+    def _process(self, item: QueuedImage) -> None:
         started = time.monotonic()
         message, received = item.message, item.received
         bgr = item.pixels()
@@ -301,13 +303,18 @@ class _DetectorPhases:
             self.health.set_status(DiagnosticStatus.OK, "running")
 
     def close(self) -> None:
-        """Stop the worker thread (called by run_node at shutdown, and when a managed node deactivates)."""
+        """Stop the worker and decode-ahead threads (run_node at shutdown; a managed node when it deactivates).
+
+        Images still waiting are counted as dropped, so the counters balance.
+        """
         if self._queue is not None:
-            self._queue.stop()
-        for thread in (self._worker, self._decoder):
+            dropped = self._queue.stop()
+            if dropped:
+                self.health.count("dropped_frames", dropped)
+        for thread in (self._worker, self._decode_ahead_thread):
             if thread is not None and thread.is_alive():
                 thread.join(timeout=5.0)
-        self._worker = self._decoder = self._queue = None
+        self._worker = self._decode_ahead_thread = self._queue = None
 
 
 class DetectorNode(_DetectorPhases, Node):

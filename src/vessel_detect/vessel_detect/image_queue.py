@@ -1,7 +1,7 @@
 """The images waiting for the detector's network: the newest kept, the next one decoded ahead.
 
 The detector node's subscription callbacks ``put`` each image; its worker thread ``take``s them, oldest first, and
-gets the pixels from ``WaitingImage.pixels``. Beyond ``capacity`` the oldest waiting image is dropped, so the
+gets the pixels from ``QueuedImage.pixels``. Beyond ``capacity`` the oldest waiting image is dropped, so the
 output never lags behind a live camera. With a decode-ahead thread running ``decode_ahead``, the image the worker
 will take next is decoded while the worker runs the network on the current one, so decoding does not add to the
 time per frame. It decodes at most one image per image taken, so a camera faster than the detector wastes at most
@@ -21,11 +21,12 @@ from typing import Any
 WAITING, DECODING, TAKEN = "waiting", "decoding", "taken"
 
 
-class WaitingImage:
-    """An image waiting for the worker, and its pixels once the decode-ahead thread has decoded them.
+class QueuedImage:
+    """An image put in the queue, and its pixels once the decode-ahead thread has decoded them.
 
     ``state``: ``waiting``; then ``decoding`` (the decode-ahead thread took it; ``done`` is set when its pixels or
-    its error are there) or ``taken`` (the worker decodes it itself). Changed under the queue's lock.
+    its error are there) or ``taken`` (the worker decodes it itself). Changed under the queue's lock, and no more
+    once the worker has taken the image.
     """
 
     __slots__ = ("kind", "message", "received", "state", "_decode", "_pixels", "_error", "_done")
@@ -39,13 +40,17 @@ class WaitingImage:
         self._done = threading.Event()
 
     def pixels(self):
-        """The decoded image: decoded here unless the decode-ahead thread did it (its error raised here)."""
-        if self.state == TAKEN:
+        """The decoded image: decoded here unless the decode-ahead thread did it (its error raised here).
+
+        Handed over: the image keeps no reference to the pixels, so they go when the worker is done with them.
+        """
+        if self.state != DECODING:
             return self._decode(self.kind, self.message)
         self._done.wait()
         if self._error is not None:
             raise self._error
-        return self._pixels
+        pixels, self._pixels = self._pixels, None
+        return pixels
 
     def _decode_now(self) -> None:
         try:
@@ -65,22 +70,24 @@ class ImageQueue:
         self.capacity = capacity
         self._decode = decode
         self._lock = threading.Condition()
-        self._waiting: deque[WaitingImage] = deque()
+        self._waiting: deque[QueuedImage] = deque()
         self._stopped = False
         self._ahead_allowed = False
 
     def put(self, kind: str, message: Any, received: float) -> int:
-        """Add an image; returns how many older images were dropped to make room for it."""
+        """Add an image; returns how many images were dropped to make room for it (1: itself, once stopped)."""
         with self._lock:
+            if self._stopped:
+                return 1
             dropped = 0
             while len(self._waiting) >= self.capacity:
                 self._waiting.popleft()
                 dropped += 1
-            self._waiting.append(WaitingImage(kind, message, received, self._decode))
+            self._waiting.append(QueuedImage(kind, message, received, self._decode))
             self._lock.notify_all()
             return dropped
 
-    def take(self) -> WaitingImage | None:
+    def take(self) -> QueuedImage | None:
         """The oldest waiting image, waiting for one; None once stopped. Allows one more decode ahead."""
         with self._lock:
             while not self._waiting and not self._stopped:
@@ -107,15 +114,13 @@ class ImageQueue:
                 image.state = DECODING
                 self._ahead_allowed = False
             image._decode_now()
+            del image  # a dropped image's pixels must not wait here for the next decode
 
-    def waiting(self) -> int:
-        """How many images wait."""
-        with self._lock:
-            return len(self._waiting)
-
-    def stop(self) -> None:
-        """Wake and end ``take`` and ``decode_ahead``; waiting images are forgotten."""
+    def stop(self) -> int:
+        """Wake and end ``take`` and ``decode_ahead``; returns how many waiting images were dropped."""
         with self._lock:
             self._stopped = True
+            dropped = len(self._waiting)
             self._waiting.clear()
             self._lock.notify_all()
+            return dropped
