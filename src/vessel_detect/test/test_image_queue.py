@@ -35,6 +35,19 @@ def wait_until(predicate, timeout_s: float = 10.0) -> bool:
     return predicate()
 
 
+def put_after_a_take(queue: ImageQueue, decoder: Decoder, message: str, hold: bool = False) -> None:
+    """Take one image (which allows one decode ahead), put ``message`` and wait until its decode ahead has begun.
+
+    ``hold``: the decode stays under way until the test sets ``decoder.gate``.
+    """
+    queue.put("compressed", "first", 0.0)
+    queue.take()
+    if hold:
+        decoder.gate.clear()
+    queue.put("compressed", message, 0.0)
+    assert wait_until(lambda: decoder.calls == [message]), decoder.calls
+
+
 def decoding_ahead(capacity: int = 1):
     """A queue with its decode-ahead thread running, the decoder, and the thread."""
     decoder = Decoder()
@@ -101,10 +114,7 @@ def test_with_two_waiting_one_is_decoded_ahead_per_image_taken_oldest_first():
 
 def test_at_most_one_image_is_decoded_ahead_per_image_taken(queue_decoding_ahead):
     queue, decoder = queue_decoding_ahead
-    queue.put("compressed", "a", 0.0)
-    queue.take()
-    queue.put("compressed", "b", 0.0)
-    assert wait_until(lambda: decoder.calls == ["b"])
+    put_after_a_take(queue, decoder, "b")
     for message in ("c", "d"):  # a camera faster than the detector: each replaces the one before
         queue.put("compressed", message, 0.0)
     time.sleep(0.1)  # time for a wrong second decode ahead to show
@@ -116,11 +126,7 @@ def test_at_most_one_image_is_decoded_ahead_per_image_taken(queue_decoding_ahead
 
 def test_the_worker_waits_for_a_decode_under_way_instead_of_decoding_twice(queue_decoding_ahead):
     queue, decoder = queue_decoding_ahead
-    queue.put("compressed", "a", 0.0)
-    queue.take()
-    decoder.gate.clear()
-    queue.put("compressed", "b", 0.0)
-    assert wait_until(lambda: decoder.calls == ["b"])
+    put_after_a_take(queue, decoder, "b", hold=True)
     image = queue.take()
     assert image.state == DECODING
     result = []
@@ -135,10 +141,7 @@ def test_the_worker_waits_for_a_decode_under_way_instead_of_decoding_twice(queue
 
 def test_a_decode_error_ahead_reaches_the_worker_as_if_it_had_decoded_the_image(queue_decoding_ahead):
     queue, decoder = queue_decoding_ahead
-    queue.put("compressed", "a", 0.0)
-    queue.take()
-    queue.put("compressed", "bad", 0.0)
-    assert wait_until(lambda: decoder.calls == ["bad"])
+    put_after_a_take(queue, decoder, "bad")
     image = queue.take()
     with pytest.raises(ValueError, match="bad bytes"):
         image.pixels()
@@ -147,11 +150,7 @@ def test_a_decode_error_ahead_reaches_the_worker_as_if_it_had_decoded_the_image(
 
 def test_stop_during_a_decode_ahead_still_hands_the_worker_its_image_and_ends_the_thread():
     queue, decoder, thread = decoding_ahead()
-    queue.put("compressed", "a", 0.0)
-    queue.take()
-    decoder.gate.clear()
-    queue.put("compressed", "b", 0.0)
-    assert wait_until(lambda: decoder.calls == ["b"])
+    put_after_a_take(queue, decoder, "b", hold=True)
     image = queue.take()
     assert queue.stop() == 0
     decoder.gate.set()
