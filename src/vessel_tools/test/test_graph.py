@@ -59,6 +59,30 @@ def test_a_spare_gets_its_nodes_blocks_under_its_namespaced_name(tmp_path, monke
     assert runner.promote_spare("fuser") is None  # no spare left until a new one is started
 
 
+def test_a_replayed_camera_holds_its_first_frame_for_the_graphs_own_detector(tmp_path):
+    """At a rate above 0 the camera's automatic wait is none: the graph makes it wait for its detector.
+
+    Seen in CI: a replay at rate 4 whose first three frames went out before the detector's subscription matched.
+    """
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"use_sim_time": False}},
+        "camera": {"ros__parameters": {"rate": 2.0, "wait_for_subscribers": -1}},
+    }))
+    later = tmp_path / "later.yaml"
+    later.write_text(yaml.safe_dump({"/camera": {"ros__parameters": {"rate": 4.0}}}))
+    values = graph.GraphRunner([params, later]).file_parameters("camera")
+    assert values == {"use_sim_time": False, "rate": 4.0, "wait_for_subscribers": -1}
+    assert graph.camera_waits_for_detector(values, {}, local_detector=True) == {"wait_for_subscribers": 1}
+    assert graph.camera_waits_for_detector({}, {}, local_detector=True) == {"wait_for_subscribers": 1}
+    # Rate 0 keeps the automatic wait, which also waits for the detector's acknowledgements.
+    assert graph.camera_waits_for_detector(values, {"rate": 0.0}, local_detector=True) == {}
+    assert graph.camera_waits_for_detector({"rate": 0.0}, {}, local_detector=True) == {}
+    # A value the user set, and a graph with no detector of its own (or --no-wait), are left alone.
+    assert graph.camera_waits_for_detector({"wait_for_subscribers": 0}, {}, local_detector=True) == {}
+    assert graph.camera_waits_for_detector(values, {}, local_detector=False) == {}
+
+
 @pytest.mark.ros
 def test_a_camera_and_detector_alone_start_at_once_with_no_wait(ros_env, tmp_path):
     """`--nodes camera,detector` waits for a tracker elsewhere; `--no-wait` runs the two alone to the source's end."""

@@ -126,6 +126,19 @@ class GraphRunner:
         self.running[node.name] = running
         return running
 
+    def file_parameters(self, name: str, with_shared: bool = True) -> dict[str, object]:
+        """The node's values in the parameter files, the later file winning (``/**`` blocks too, unless told not).
+
+        What the node ``name`` reads from them, without the per-run overrides.
+        """
+        parameters: dict[str, object] = {}
+        keys = (("/**",) if with_shared else ()) + (name, f"/{name}")
+        for path in self.params_files:
+            blocks = read_params_yaml(path)
+            for key in keys:
+                parameters.update(flatten(blocks.get(key) or {}))
+        return parameters
+
     def start_spare(self, name: str) -> RunningNode:
         """Start a hot standby of the running node ``name`` (``vessel_common.node_support.Standby``).
 
@@ -137,11 +150,7 @@ class GraphRunner:
         active = self.running[name]
         self._spares_started += 1
         namespace = f"/standby_{self._spares_started}"
-        parameters: dict[str, object] = {}
-        for path in self.params_files:  # the /** blocks apply as they are
-            blocks = read_params_yaml(path)
-            for key in (name, f"/{name}"):
-                parameters.update(flatten(blocks.get(key) or {}))
+        parameters = self.file_parameters(name, with_shared=False)  # the /** blocks apply as they are
         parameters.update(flatten(active.parameters or {}))
         parameters["standby"] = True
         label = f"{name}.standby_{self._spares_started}"
@@ -294,6 +303,20 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
             raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
         if time.monotonic() > deadline:
             raise VesselError(f"the graph did not connect within {timeout_s:g} s; {where}")
+
+
+def camera_waits_for_detector(camera_file_values: dict[str, object], overrides: dict[str, object],
+                              local_detector: bool) -> dict[str, object]:
+    """The camera override that holds its first frame until the graph's own detector has matched its images.
+
+    The camera's automatic ``wait_for_subscribers`` (-1) waits only at rate 0; at any other rate a replay started
+    before the detector's subscription had matched sent its first frames to no one (best effort, uncounted).
+    A value the parameter files set is kept; so is the automatic one where there is no local detector.
+    """
+    if not local_detector or camera_file_values.get("wait_for_subscribers", -1) != -1:
+        return {}
+    rate = overrides.get("rate", camera_file_values.get("rate", 1.0))
+    return {} if float(rate) == 0.0 else {"wait_for_subscribers": 1}
 
 
 def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) -> bool:
@@ -449,6 +472,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 overrides["source"] = args.source
             if args.rate is not None:
                 overrides["rate"] = args.rate
+            overrides.update(camera_waits_for_detector(runner.file_parameters("camera"), overrides,
+                                                       "detector" in wanted and not args.no_wait))
             runner.start(known["camera"], overrides)
             print(f"[graph] started camera: {known['camera'].role}", file=sys.stderr)
         while not stop_requested.is_set():
