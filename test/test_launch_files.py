@@ -71,7 +71,29 @@ def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(mon
         # The per-run values are -p assignments, which beat the node's own block of the parameter file.
         assert node.kwargs["ros_arguments"][:2] == ["-p", "use_sim_time:=true"]  # a recording: its /clock
     camera = nodes[0].kwargs["ros_arguments"]
-    assert camera[2:] == ["-p", "source:=bags/video_13", "-p", "rate:=4.0"]
+    # Every node starts at once: at a rate above 0 the camera holds its first frame for the detector.
+    assert camera[2:] == ["-p", "source:=bags/video_13", "-p", "rate:=4.0", "-p", "wait_for_subscribers:=1"]
+
+
+@pytest.mark.parametrize("rate, camera_block, waits", [
+    ("1.0", {}, True),
+    ("0", {}, False),  # the camera's automatic wait at rate 0 already waits for the detector
+    ("", {"rate": 2.0}, True),  # no rate:= given: the file's
+    ("", {"rate": 0.0}, False),
+    ("1.0", {"wait_for_subscribers": 0}, False),  # a value the user set is kept
+])
+def test_the_launched_camera_waits_for_the_detector_unless_told_otherwise(monkeypatch, tmp_path, rate, camera_block,
+                                                                         waits):
+    import yaml
+
+    module = _load_graph_launch(monkeypatch)
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"camera": {"ros__parameters": camera_block}}))
+    context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
+               "source": "bags/video_13", "rate": rate, "use_sim_time": "auto", "respawn": "false",
+               "managed": "false"}
+    camera = module._nodes(context)[0].kwargs["ros_arguments"]
+    assert ("wait_for_subscribers:=1" in camera) == waits
 
 
 def test_a_mistyped_parameter_file_stops_the_graph_launch(monkeypatch):

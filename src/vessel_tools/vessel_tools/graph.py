@@ -21,7 +21,6 @@ from pathlib import Path
 
 import yaml
 
-from vessel_calib.params import read_params_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
 from vessel_common.parameter_names import flatten
@@ -35,6 +34,8 @@ from vessel_track.graph_nodes import (
     STANDBY_NODES,
     STATEFUL_NODES,
     GraphNode,
+    camera_waits_for_detector,
+    file_parameters,
     restart_delay_s,
     sim_time_for_source,
 )
@@ -131,13 +132,7 @@ class GraphRunner:
 
         What the node ``name`` reads from them, without the per-run overrides.
         """
-        parameters: dict[str, object] = {}
-        keys = (("/**",) if with_shared else ()) + (name, f"/{name}")
-        for path in self.params_files:
-            blocks = read_params_yaml(path)
-            for key in keys:
-                parameters.update(flatten(blocks.get(key) or {}))
-        return parameters
+        return file_parameters(self.params_files, name, with_shared)
 
     def start_spare(self, name: str) -> RunningNode:
         """Start a hot standby of the running node ``name`` (``vessel_common.node_support.Standby``).
@@ -303,20 +298,6 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
             raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
         if time.monotonic() > deadline:
             raise VesselError(f"the graph did not connect within {timeout_s:g} s; {where}")
-
-
-def camera_waits_for_detector(camera_file_values: dict[str, object], overrides: dict[str, object],
-                              local_detector: bool) -> dict[str, object]:
-    """The camera override that holds its first frame until the graph's own detector has matched its images.
-
-    The camera's automatic ``wait_for_subscribers`` (-1) waits only at rate 0; at any other rate a replay started
-    before the detector's subscription had matched sent its first frames to no one (best effort, uncounted).
-    A value the parameter files set is kept; so is the automatic one where there is no local detector.
-    """
-    if not local_detector or camera_file_values.get("wait_for_subscribers", -1) != -1:
-        return {}
-    rate = overrides.get("rate", camera_file_values.get("rate", 1.0))
-    return {} if float(rate) == 0.0 else {"wait_for_subscribers": 1}
 
 
 def _respawn(runner: GraphRunner, failed: list[str], backoff: dict[str, float]) -> bool:

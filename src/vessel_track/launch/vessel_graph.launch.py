@@ -12,6 +12,9 @@ camera and the detector as lifecycle nodes, configured and activated by this lau
 The per-run values go on each node's command line as ``-p name:=value``: launch_ros would write them into a
 ``/**`` block, which the node's own block of ``params_file`` beats, so ``source:=`` and ``rate:=`` would be
 ignored. A parameter file that does not exist stops the launch with one line instead of running on defaults.
+Every node starts at once, so at a ``rate`` above 0 the camera holds its first frame until the detector has matched
+its images (``wait_for_subscribers:=1``, unless the parameter files set it), as ``./vessel graph`` does: a replay
+does not send its first frames to no one.
 """
 
 import shutil
@@ -23,7 +26,15 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from vessel_track.graph_nodes import GRAPH_NODES, MAX_RESTARTS, STATEFUL_NODES, camera_command_line, sim_time_for_source
+from vessel_track.graph_nodes import (
+    GRAPH_NODES,
+    MAX_RESTARTS,
+    STATEFUL_NODES,
+    camera_command_line,
+    camera_waits_for_detector,
+    file_parameters,
+    sim_time_for_source,
+)
 
 
 def _nodes(context):
@@ -42,6 +53,10 @@ def _nodes(context):
         ros_arguments = ["-p", f"use_sim_time:={'true' if use_sim_time else 'false'}"]
         if graph_node.name == "camera":
             ros_arguments += camera_command_line(values["source"], values["rate"])
+            rate = {"rate": values["rate"]} if values["rate"].strip() else {}
+            waits = camera_waits_for_detector(file_parameters([values["params_file"], values["calib_file"]], "camera"),
+                                              rate, local_detector=True)
+            ros_arguments += [arg for name, value in waits.items() for arg in ("-p", f"{name}:={value}")]
         if state_dir is not None and graph_node.name in STATEFUL_NODES:
             ros_arguments += ["-p", f"state_file:={state_dir / (graph_node.name + '.state')}"]
         common = dict(package=graph_node.package, name=graph_node.name,

@@ -2,12 +2,17 @@
 
 The launch file ``vessel_graph.launch.py`` builds its ``launch_ros`` nodes from ``GRAPH_NODES``, and ``./vessel
 graph`` (``vessel_tools.graph``) starts the same executables with the same parameter files, as ``ros2 run`` would.
-Plain data and string helpers: nothing here imports ROS.
+Plain data, string helpers and a parameter-file reader: nothing here imports ROS.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
+
+from vessel_calib.params import read_params_yaml
+from vessel_common.parameter_names import flatten
 
 
 @dataclass(frozen=True)
@@ -52,6 +57,34 @@ def camera_command_line(source: str, rate: str | float | None) -> list[str]:
     if rate is not None and str(rate).strip():
         args += ["-p", f"rate:={float(rate)!r}"]
     return args
+
+
+def file_parameters(params_files: Sequence[Path | str], name: str, with_shared: bool = True) -> dict[str, object]:
+    """Node ``name``'s values in the parameter files, the later file winning (``/**`` blocks too, unless told not).
+
+    What the node reads from them, without the per-run ``-p`` values; an unreadable file raises CalibrationError.
+    """
+    parameters: dict[str, object] = {}
+    keys = (("/**",) if with_shared else ()) + (name, f"/{name}")
+    for path in params_files:
+        blocks = read_params_yaml(path)
+        for key in keys:
+            parameters.update(flatten(blocks.get(key) or {}))
+    return parameters
+
+
+def camera_waits_for_detector(camera_file_values: dict[str, object], overrides: dict[str, object],
+                              local_detector: bool) -> dict[str, object]:
+    """The camera override that holds its first frame until the graph's own detector has matched its images.
+
+    The camera's automatic ``wait_for_subscribers`` (-1) waits only at rate 0; at any other rate a replay started
+    before the detector's subscription had matched sent its first frames to no one (best effort, uncounted).
+    A value the parameter files set is kept; so is the automatic one where there is no local detector.
+    """
+    if not local_detector or camera_file_values.get("wait_for_subscribers", -1) != -1:
+        return {}
+    rate = overrides.get("rate", camera_file_values.get("rate", 1.0))
+    return {} if float(rate) == 0.0 else {"wait_for_subscribers": 1}
 
 
 STATEFUL_NODES = ("tracker", "fuser")
