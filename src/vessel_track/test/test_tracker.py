@@ -141,6 +141,63 @@ def test_size_term_decides_between_equally_near_detections():
     assert states[tid].measured_size[0] == pytest.approx(31.0)
 
 
+def _far_track_then_two_boxes(config: TrackerConfig) -> float:
+    """The height of the box a far boat's track takes: one at its prediction, or one of its own height below.
+
+    The boat is tracked at 30x16 px, a box every 4 s; then come a box at its prediction 0.6 times its height and a
+    box of its own height 25 px lower.
+    """
+    tracker = MultiTargetTracker(config)
+    for k in range(5):
+        tracker.update(T0 + 4.0 * k, [box(300, 420, 30, 16)], [0.9])
+    (tid,) = tracker.track_ids
+    states = by_id(tracker.update(T0 + 20.0, [box(300, 420, 30, 9.6), box(300, 445, 30, 16)], [0.9, 0.9]))
+    return float(states[tid].measured_size[1])
+
+
+def test_a_tight_height_model_keeps_a_track_off_a_much_lower_box():
+    """With ``height_log_std`` a track takes the box of its own height, not a much lower one nearer its prediction.
+
+    The width varies with the heading, the height with the range only.
+    """
+    assert _far_track_then_two_boxes(TrackerConfig()) == pytest.approx(9.6)
+    assert _far_track_then_two_boxes(TrackerConfig(height_log_std=0.15)) == pytest.approx(16.0)
+
+
+@pytest.mark.parametrize("dt, height_px, taken", [(0.04, 120.0, False), (4.0, 120.0, True), (4.0, 12.0, False)])
+def test_the_height_model_grows_with_time_and_nearness(dt, height_px, taken):
+    """``height_log_std_rate``: a box 1.8 times as high suits a near boat seen 4 s ago, not a far or recent one.
+
+    Neither a far boat seen 4 s ago nor a near one seen 40 ms ago takes it: with the clutter test, the track coasts.
+    """
+    config = TrackerConfig(height_log_std=0.1, height_log_std_rate=0.001, size_log_std=0.4, gate_px=400.0,
+                           max_gate_px=400.0, max_size_ratio=0.0)
+    tracker = MultiTargetTracker(config)
+    width = 2.0 * height_px
+    for k in range(5):
+        tracker.update(T0 + k * dt, [box(600, 500, width, height_px)], [0.9])
+    (tid,) = tracker.track_ids
+    states = by_id(tracker.update(T0 + 5 * dt, [box(600, 500, width, 1.8 * height_px)], [0.9]))
+    assert (states[tid].measured_size is not None) == taken
+
+
+def test_without_the_height_parameters_the_cost_is_the_single_size_model():
+    """``height_log_std`` 0 is ``size_log_std``, and a rate of 0 keeps it constant: the same costs as one model."""
+    tracks_boxes = [box(300, 420, 30, 16), box(700, 430, 60, 30)]
+    dets = np.array([[296, 419], [306, 420], [705, 432]], float), np.array([[26, 8], [30, 15], [50, 40]], float)
+    costs = []
+    for config in (TrackerConfig(), TrackerConfig(height_log_std=0.4, height_log_std_rate=0.0)):
+        tracker = MultiTargetTracker(config)
+        for k in range(4):
+            tracker.update(T0 + 4 * k, tracks_boxes, [0.9, 0.9])
+        tracks = list(tracker._tracks)
+        for track in tracks:
+            tracker._predict(track, T0 + 16)
+        costs.append((tracker._cost_matrix(tracks, *dets), tracker._clutter_cost()))
+    np.testing.assert_allclose(costs[0][0], costs[1][0], rtol=1e-9)
+    assert costs[0][1] == pytest.approx(costs[1][1], rel=1e-12)
+
+
 def test_crossing_vessels_keep_their_ids():
     """Two boats cross on screen (the far one hidden while they overlap); both keep their ids."""
     tracker = MultiTargetTracker()

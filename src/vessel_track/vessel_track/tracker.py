@@ -133,6 +133,17 @@ class TrackerConfig:
     size_log_std: float = 0.4
     """Expected change of ln(box width) and ln(box height) between associated detections (0.4: about ±50 %;
     hand boxes of the challenge boat change by up to 2.3x between frames 4 s apart when it passes close)."""
+    height_log_std: float = 0.0
+    """Expected change of ln(box height) alone between detections close together in time (0: ``size_log_std``).
+    A boat's width changes with its heading, its height almost only with its range, so the height can be held
+    to a tighter model than the width: a track then does not move onto a box of another boat half its height."""
+    height_log_std_rate: float = 0.0
+    """Growth of the height's expected change with time and nearness, per px of box height per s (0: constant).
+    The height scales as 1/range, so ln(height) changes by (range rate / range) dt, and range is proportional to
+    1/height: the expected change is ``height_log_std_rate x height x dt``, added in quadrature to
+    ``height_log_std``, with the track's latest box height and the time since its latest box. A near boat may
+    double its height between frames seconds apart, a far one barely changes, and frames milliseconds apart
+    change by the detector's jitter alone."""
     max_size_ratio: float = 3.0
     """A detection whose width or height differs from the track's box by more than this factor is not
     associated (0 disables the size gate)."""
@@ -187,6 +198,7 @@ class TrackerConfig:
                     "tentative_max_coast_s", "size_log_std", "min_box_size_px")
         non_negative = ("measurement_std_size_frac", "process_noise", "process_noise_y", "clutter_density_per_mpx",
                         "init_velocity_std_x_px_s", "init_velocity_std_y_px_s", "size_weight", "max_size_ratio",
+                        "height_log_std", "height_log_std_rate",
                         "duplicate_iou", "min_score", "backwards_reset_s", "confidence_weight")
         for name in positive:
             value = getattr(self, name)
@@ -712,8 +724,21 @@ class MultiTargetTracker:
             return math.inf
         cost = -2.0 * math.log(cfg.clutter_density_per_mpx * 1e-6) - _LOG_2PI_SQ
         if cfg.size_weight > 0:
-            cost += _CLUTTER_LOG_SIZE_NLL - 2.0 * math.log(2.0 * math.pi * cfg.size_log_std**2)
+            cost += _CLUTTER_LOG_SIZE_NLL - math.log(2.0 * math.pi * cfg.size_log_std**2) - math.log(
+                2.0 * math.pi * self._base_height_log_std**2)
         return cost
+
+    @property
+    def _base_height_log_std(self) -> float:
+        return self.config.height_log_std if self.config.height_log_std > 0 else self.config.size_log_std
+
+    def _height_log_var(self, tracks: list[_Track]) -> np.ndarray:
+        """(T,) variance of each track's ln(height) change to a box now: ``height_log_std``, grown by the rate."""
+        cfg = self.config
+        base = self._base_height_log_std
+        heights = np.array([t.size[1] for t in tracks], dtype=float)
+        elapsed = np.array([max(t.stamp - t.last_seen, 0.0) for t in tracks], dtype=float)
+        return base**2 + (cfg.height_log_std_rate * heights * elapsed) ** 2
 
     def _confidence_terms(self, tracks: list[_Track], confs: np.ndarray | None) -> np.ndarray:
         """(tracks, detections) ``-2 ln(2 (q p + (1 - q)(1 - p)))`` times ``confidence_weight`` (0 when off)."""
@@ -753,7 +778,10 @@ class MultiTargetTracker:
             mahalanobis2 = (d[..., 0] ** 2 * s11 - d[..., 0] * d[..., 1] * (s01 + s10) + d[..., 1] ** 2 * s00) / det
             log_det_S = np.log(det)
             ratio = np.log(sizes[None, :, :] / np.array([t.size for t in tracks], dtype=float)[:, None, :])
-        size_term = np.sum((ratio / cfg.size_log_std) ** 2, axis=2)
+        height_var = self._height_log_var(tracks)[:, None]                                   # (T, 1)
+        # The height's own normaliser beyond the clutter cost's (0 while it is height_log_std).
+        size_term = ((ratio[..., 0] / cfg.size_log_std) ** 2 + ratio[..., 1] ** 2 / height_var
+                     + np.log(height_var / self._base_height_log_std**2))
         confidence_terms = self._confidence_terms(tracks, confs)
         if not confidence_terms.size:
             confidence_terms = np.zeros((n_tracks, n_dets))

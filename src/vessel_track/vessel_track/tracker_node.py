@@ -72,6 +72,11 @@ TRACKER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "confidence_memory": ("Updates whose confidences make a track's side of the confidence-agreement term.",
                           None),
     "size_log_std": ("Expected change of ln(width), ln(height) between associated boxes.", (1e-3, 10.0)),
+    "height_log_std": ("Expected change of ln(height) alone between boxes close in time (0: size_log_std): the "
+                       "height follows the range, the width also the heading.", (0.0, 10.0)),
+    "height_log_std_rate": ("Growth of the height's expected change per px of box height per s since the track's "
+                            "last box, in quadrature (0: constant): near boats change size fast, far ones "
+                            "slowly.", (0.0, 1.0)),
     "max_size_ratio": ("Boxes differing from the track's size by more than this factor are not associated "
                        "(0 disables).", (0.0, 1e3)),
     "min_hits": ("Detections before a track is CONFIRMED.", None),
