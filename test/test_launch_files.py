@@ -81,6 +81,7 @@ def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(mon
     ("", {"rate": 2.0}, True),  # no rate:= given: the file's
     ("", {"rate": 0.0}, False),
     ("1.0", {"wait_for_subscribers": 0}, False),  # a value the user set is kept
+    ("1.0", {"wait_for_subscribers": -1}, True),  # -1 is the automatic value, as in config/aitas.yaml
 ])
 def test_the_launched_camera_waits_for_the_detector_unless_told_otherwise(monkeypatch, tmp_path, rate, camera_block,
                                                                          waits):
@@ -94,6 +95,28 @@ def test_the_launched_camera_waits_for_the_detector_unless_told_otherwise(monkey
                "managed": "false"}
     camera = module._nodes(context)[0].kwargs["ros_arguments"]
     assert ("wait_for_subscribers:=1" in camera) == waits
+
+
+@pytest.mark.parametrize("rate, blocks, message", [
+    ("", {"/**": {"ros__parameters": {"wait_for_subscribers": 2}}}, None),  # set for every node: kept
+    ("fast", {}, "rate:=fast is not a number"),
+    ("", {"camera": {"ros__parameters": {"rate": "fast"}}}, "the camera's rate in the parameter files is 'fast'"),
+])
+def test_the_launched_cameras_wait_follows_the_shared_block_and_a_bad_rate_stops_the_launch(monkeypatch, tmp_path,
+                                                                                            rate, blocks, message):
+    import yaml
+
+    module = _load_graph_launch(monkeypatch)
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(blocks))
+    context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
+               "source": "bags/video_13", "rate": rate, "use_sim_time": "auto", "respawn": "false",
+               "managed": "false"}
+    if message is None:
+        assert "wait_for_subscribers:=1" not in module._nodes(context)[0].kwargs["ros_arguments"]
+    else:
+        with pytest.raises(RuntimeError, match=message):
+            module._nodes(context)
 
 
 def test_a_mistyped_parameter_file_stops_the_graph_launch(monkeypatch):

@@ -13,8 +13,8 @@ The per-run values go on each node's command line as ``-p name:=value``: launch_
 ``/**`` block, which the node's own block of ``params_file`` beats, so ``source:=`` and ``rate:=`` would be
 ignored. A parameter file that does not exist stops the launch with one line instead of running on defaults.
 Every node starts at once, so at a ``rate`` above 0 the camera holds its first frame until the detector has matched
-its images (``wait_for_subscribers:=1``, unless the parameter files set it), as ``./vessel graph`` does: a replay
-does not send its first frames to no one.
+its images (``wait_for_subscribers:=1``, unless the parameter files set another value than the automatic -1), as
+``./vessel graph`` does: a replay does not send its first frames to no one.
 """
 
 import shutil
@@ -26,6 +26,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from vessel_common.errors import VesselError
 from vessel_track.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
@@ -44,6 +45,12 @@ def _nodes(context):
         if not Path(values[key]).is_file():
             raise RuntimeError(f"{key}:={values[key]} is not a file: give the graph's parameter file (e.g. "
                                "config/aitas.yaml) and the calibration written by calibrate (config/aitas_camera.yaml)")
+    if values["rate"].strip():
+        try:
+            float(values["rate"])
+        except ValueError:
+            raise RuntimeError(f"rate:={values['rate']} is not a number: give the replay rate, e.g. rate:=1.0 "
+                               "(real time) or rate:=0 (as fast as the graph consumes)") from None
     use_sim_time = sim_time_for_source(values["source"]) if values["use_sim_time"] == "auto" else \
         values["use_sim_time"].lower() == "true"
     respawn = values["respawn"].lower() == "true"
@@ -54,8 +61,11 @@ def _nodes(context):
         if graph_node.name == "camera":
             ros_arguments += camera_command_line(values["source"], values["rate"])
             rate = {"rate": values["rate"]} if values["rate"].strip() else {}
-            waits = camera_waits_for_detector(file_parameters([values["params_file"], values["calib_file"]], "camera"),
-                                              rate, local_detector=True)
+            try:
+                waits = camera_waits_for_detector(
+                    file_parameters([values["params_file"], values["calib_file"]], "camera"), rate, local_detector=True)
+            except VesselError as error:
+                raise RuntimeError(str(error)) from None
             ros_arguments += [arg for name, value in waits.items() for arg in ("-p", f"{name}:={value}")]
         if state_dir is not None and graph_node.name in STATEFUL_NODES:
             ros_arguments += ["-p", f"state_file:={state_dir / (graph_node.name + '.state')}"]

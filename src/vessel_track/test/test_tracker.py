@@ -181,21 +181,61 @@ def test_the_height_model_grows_with_time_and_nearness(dt, height_px, taken):
     assert (states[tid].measured_size is not None) == taken
 
 
-def test_without_the_height_parameters_the_cost_is_the_single_size_model():
-    """``height_log_std`` 0 is ``size_log_std``, and a rate of 0 keeps it constant: the same costs as one model."""
-    tracks_boxes = [box(300, 420, 30, 16), box(700, 430, 60, 30)]
-    dets = np.array([[296, 419], [306, 420], [705, 432]], float), np.array([[26, 8], [30, 15], [50, 40]], float)
-    costs = []
-    for config in (TrackerConfig(), TrackerConfig(height_log_std=0.4, height_log_std_rate=0.0)):
-        tracker = MultiTargetTracker(config)
-        for k in range(4):
-            tracker.update(T0 + 4 * k, tracks_boxes, [0.9, 0.9])
-        tracks = list(tracker._tracks)
-        for track in tracks:
-            tracker._predict(track, T0 + 16)
-        costs.append((tracker._cost_matrix(tracks, *dets), tracker._clutter_cost()))
-    np.testing.assert_allclose(costs[0][0], costs[1][0], rtol=1e-9)
-    assert costs[0][1] == pytest.approx(costs[1][1], rel=1e-12)
+def _two_tracks_and_three_boxes(config: TrackerConfig):
+    """Two tracks seen every 4 s, predicted to 16 s; the cost matrix to three boxes, and the clutter cost."""
+    tracker = MultiTargetTracker(config)
+    for k in range(4):
+        tracker.update(T0 + 4 * k, [box(300, 420, 30, 16), box(700, 430, 60, 30)], [0.9, 0.9])
+    tracks = list(tracker._tracks)
+    for track in tracks:
+        tracker._predict(track, T0 + 16)
+    centers = np.array([[296, 419], [306, 420], [705, 432]], float)
+    sizes = np.array([[26, 8], [30, 15], [50, 40]], float)
+    return tracker._cost_matrix(tracks, centers, sizes), tracker._clutter_cost(), tracks, sizes
+
+
+def test_without_the_height_parameters_the_costs_are_those_of_one_size_model():
+    """``height_log_std`` 0 and rate 0 give the costs of a single size model.
+
+    The size term is sum((ln ratio / size_log_std)^2) and the clutter cost's size part -2 ln(2 pi size_log_std^2).
+    """
+    config = TrackerConfig()
+    cost, clutter, tracks, sizes = _two_tracks_and_three_boxes(config)
+    one_model, _, _, _ = _two_tracks_and_three_boxes(TrackerConfig(size_weight=0.0))
+    ratio = np.log(sizes[None, :, :] / np.array([t.size for t in tracks])[:, None, :])
+    size_term = np.sum((ratio / config.size_log_std) ** 2, axis=2)
+    admissible = cost < 1e8
+    np.testing.assert_allclose(cost[admissible], (one_model + size_term)[admissible], rtol=1e-9)
+    clutter_without_size = MultiTargetTracker(TrackerConfig(size_weight=0.0))._clutter_cost()
+    expected = clutter_without_size + 4.0 * math.log(math.log(10.0)) - 2.0 * math.log(
+        2.0 * math.pi * config.size_log_std**2)
+    assert clutter == pytest.approx(expected, rel=1e-12)
+    # A height model of its own: the clutter's height density is spread over the same decade, normalised by it.
+    own_height = MultiTargetTracker(TrackerConfig(height_log_std=0.2))._clutter_cost()
+    assert own_height == pytest.approx(expected + math.log(config.size_log_std**2 / 0.2**2), rel=1e-12)
+
+
+def test_a_grown_height_model_pays_its_normaliser():
+    """With a rate, a pair's height term is ratio^2 / var + ln(var / height_log_std^2), var grown by the rate.
+
+    The normaliser keeps a track whose model has grown from taking any box for free.
+    """
+    base, _, tracks, sizes = _two_tracks_and_three_boxes(TrackerConfig(height_log_std=0.2, max_size_ratio=0.0,
+                                                                       clutter_density_per_mpx=0.0))
+    grown, _, _, _ = _two_tracks_and_three_boxes(TrackerConfig(height_log_std=0.2, height_log_std_rate=0.01,
+                                                               max_size_ratio=0.0, clutter_density_per_mpx=0.0))
+    ratio_h = np.log(sizes[None, :, 1] / np.array([t.size[1] for t in tracks])[:, None])
+    height_var = np.array([[0.2**2 + (0.01 * t.size[1] * 4.0) ** 2] for t in tracks])
+    expected_change = ratio_h**2 / height_var + np.log(height_var / 0.2**2) - ratio_h**2 / 0.2**2
+    admissible = (base < 1e8) & (grown < 1e8)
+    assert admissible.sum() >= 3
+    np.testing.assert_allclose((grown - base)[admissible], expected_change[admissible], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("value", [1e-170, 5e-4])
+def test_a_height_model_too_tight_to_compute_is_refused(value):
+    with pytest.raises(DataError, match="height_log_std 0"):
+        TrackerConfig(height_log_std=value)
 
 
 def test_crossing_vessels_keep_their_ids():

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vessel_calib.params import read_params_yaml
+from vessel_common.errors import DataError
 from vessel_common.parameter_names import flatten
 
 
@@ -79,12 +80,20 @@ def camera_waits_for_detector(camera_file_values: dict[str, object], overrides: 
 
     The camera's automatic ``wait_for_subscribers`` (-1) waits only at rate 0; at any other rate a replay started
     before the detector's subscription had matched sent its first frames to no one (best effort, uncounted).
-    A value the parameter files set is kept; so is the automatic one where there is no local detector.
+    A value other than the automatic -1 in the parameter files is kept; so is the automatic one where there is no
+    local detector. A rate that is not a number raises DataError naming where it came from.
     """
     if not local_detector or camera_file_values.get("wait_for_subscribers", -1) != -1:
         return {}
-    rate = overrides.get("rate", camera_file_values.get("rate", 1.0))
-    return {} if float(rate) == 0.0 else {"wait_for_subscribers": 1}
+    given = "rate" in overrides
+    rate = overrides["rate"] if given else camera_file_values.get("rate", 1.0)
+    try:
+        rate = float(rate)
+    except (TypeError, ValueError):
+        where = "the replay rate given" if given else "the camera's rate in the parameter files"
+        raise DataError(f"{where} is {rate!r}, not a number: give e.g. 1.0 (real time) or 0 (as fast as the "
+                        "graph consumes)") from None
+    return {} if rate == 0.0 else {"wait_for_subscribers": 1}
 
 
 STATEFUL_NODES = ("tracker", "fuser")

@@ -226,6 +226,9 @@ class TrackerConfig:
                             f"got {self.max_size_ratio}")
         if self.duplicate_iou > 1:
             raise DataError(f"tracker config: duplicate_iou must be in [0, 1], got {self.duplicate_iou}")
+        if self.size_log_std < 1e-3 or 0 < self.height_log_std < 1e-3:
+            raise DataError(f"tracker config: size_log_std must be >= 0.001 and height_log_std 0 (= size_log_std) or "
+                            f">= 0.001, got {self.size_log_std} and {self.height_log_std}")
 
     @classmethod
     def from_dict(cls, values: dict) -> TrackerConfig:

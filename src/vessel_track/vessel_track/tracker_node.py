@@ -72,8 +72,8 @@ TRACKER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "confidence_memory": ("Updates whose confidences make a track's side of the confidence-agreement term.",
                           None),
     "size_log_std": ("Expected change of ln(width), ln(height) between associated boxes.", (1e-3, 10.0)),
-    "height_log_std": ("Expected change of ln(height) alone between boxes close in time (0: size_log_std): the "
-                       "height follows the range, the width also the heading.", (0.0, 10.0)),
+    "height_log_std": ("Expected change of ln(height) alone between boxes close in time (0: size_log_std; else at "
+                       "least 0.001): the height follows the range, the width also the heading.", (0.0, 10.0)),
     "height_log_std_rate": ("Growth of the height's expected change per px of box height per s since the track's "
                             "last box, in quadrature (0: constant): near boats change size fast, far ones "
                             "slowly.", (0.0, 1.0)),
