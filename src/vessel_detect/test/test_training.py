@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from vessel_common.errors import DataError
-from vessel_detect.training.augment import AugmentSettings, random_sample
+from vessel_detect.training.augment import AugmentSettings, paste_target, random_sample
 from vessel_detect.training.labels import (
     OTHER_CLASS,
     TARGET_CLASS,
@@ -185,6 +185,67 @@ def test_close_ups_of_other_boats_with_zoom_other():
     never = AugmentSettings(crop_wh=(256, 128), zoom_target=1.0, zoom_range=(2.0, 3.0))
     for seed in range(20):
         assert np.any(random_sample(image, labels, 150.0, np.random.default_rng(seed), never).classes == 0)
+
+
+def _donor_frame():
+    """A frame whose vessel of interest is a red 40x15 boat at x 400-440 on rows 200-215, and nothing else."""
+    image = np.full((360, 640, 3), (90, 110, 80), np.uint8)
+    image[200:215, 400:440] = (0, 0, 250)
+    return image, FrameLabels(2, 0, "labelled", np.array([[400.0, 200, 440, 215]]), np.array([0]), np.zeros((0, 4)),
+                              "coco", 30.0)
+
+
+def test_a_pasted_vessel_lands_on_its_own_rows_clear_of_every_box_and_is_labelled_the_vessel():
+    image, labels = _frame_with_boat(None)  # the vessel at x 300-340, a boat at 50-70, an ignore region at 500-520
+    donor_image, donor = _donor_frame()
+    settings = AugmentSettings(paste_target=1.0, paste_margin=0.2, paste_shift_px=640.0)
+    places = set()
+    for seed in range(30):
+        pasted, out = paste_target(image, labels, donor_image, donor, np.random.default_rng(seed), settings)
+        assert len(out.boxes) == 3 and list(out.classes) == [0, 1, 0]
+        x1, y1, x2, y2 = out.boxes[-1]
+        assert (y1, y2) == (200.0, 215.0) and x2 - x1 == pytest.approx(40.0)  # same rows, same size
+        for other in np.concatenate([labels.boxes, labels.ignore]):
+            assert x2 + 8 <= other[0] or x1 - 8 >= other[2]  # the feathered margin too is clear of them
+        assert np.all(pasted[207, int(x1) + 10 : int(x2) - 10] == (0, 0, 250))  # the boat itself, unblended
+        places.add(int(x1))
+    assert len(places) > 10  # anywhere on its rows
+    np.testing.assert_array_equal(image[200:215, 300:340], 250)  # the frame itself is not drawn on
+    assert len(labels.boxes) == 2
+
+
+def test_a_paste_with_no_shift_puts_the_vessel_where_it_was_or_nowhere():
+    image, labels = _frame_with_boat(None)
+    donor_image, donor = _donor_frame()
+    settings = AugmentSettings(paste_target=1.0, paste_shift_px=0.0)
+    _, out = paste_target(image, labels, donor_image, donor, np.random.default_rng(0), settings)
+    np.testing.assert_allclose(out.boxes[-1], [400.0, 200, 440, 215])
+    crowded = FrameLabels(1, 0, "labelled", np.array([[395.0, 195, 450, 220]]), np.array([1]), np.zeros((0, 4)))
+    same, unchanged = paste_target(image, crowded, donor_image, donor, np.random.default_rng(0), settings)
+    assert same is image and unchanged is crowded  # no clear place: nothing pasted
+
+
+def test_pasting_is_off_by_default_and_draws_nothing_from_the_seed():
+    """The shipped recipe's crops are the same with or without donors: a paste share of 0 takes no random draw."""
+    image, labels = _frame_with_boat(None)
+    donors = [_donor_frame()]
+    settings = AugmentSettings(crop_wh=(256, 128))
+    for seed in range(5):
+        a = random_sample(image, labels, 150.0, np.random.default_rng(seed), settings)
+        b = random_sample(image, labels, 150.0, np.random.default_rng(seed), settings, donors)
+        np.testing.assert_array_equal(a.image, b.image)
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+    pasting = AugmentSettings(crop_wh=(640, 352), scale_range=(1.0, 1.0), top_jitter_px=0.0, focus_target=0.0,
+                              zoom_target=0.0, paste_target=1.0)
+    counts = [np.sum(random_sample(image, labels, 0.0, np.random.default_rng(seed), pasting, donors).classes == 0)
+              for seed in range(10)]
+    assert max(counts) == 2  # the frame's own vessel and the pasted one
+
+
+def test_the_paste_options_are_checked():
+    for options, message in ((["--paste-target", "1.5"], "--paste-target"), (["--paste-target", "nan"],
+                             "--paste-target"), (["--paste-shift", "-1"], "--paste-shift")):
+        _train_is_refused(options, message)
 
 
 def test_the_scale_range_option_is_checked_and_defaults_to_the_augmentation_default():
@@ -405,6 +466,22 @@ def test_the_exported_model_runs_at_any_size_and_the_detector_zooms_the_far_stri
     record_input_size(fixed, (64, 128))
     freed = OnnxModel(fixed)
     assert freed.free_input_size and freed.input_hw == (64, 128)
+
+
+def test_smoke_training_with_pasted_vessels(tiny_onnx):
+    from dataclasses import replace
+
+    from vessel_detect.training.trainer import train
+
+    images, labels = _synthetic_set()
+    whole_frames = AugmentSettings(crop_wh=(256, 128), scale_range=(1.0, 1.0), top_jitter_px=0.0, focus_target=0.0,
+                                   zoom_target=0.0)  # every crop shows every boat
+    plain = replace(_smoke_settings(), augment=whole_frames)
+    pasting = replace(plain, augment=replace(whole_frames, paste_target=1.0))
+    history = train(tiny_onnx, labels, images, None, pasting, log=lambda m: None)[1].history
+    without = train(tiny_onnx, labels, images, None, plain, log=lambda m: None)[1].history
+    assert all(math.isfinite(h["loss"]) for h in history)
+    assert history[0]["foreground_per_image"] > without[0]["foreground_per_image"]  # more vessels to learn from
 
 
 def test_the_same_seed_gives_the_same_training(tiny_onnx):

@@ -54,6 +54,9 @@ def model_card(model_path: Path, summary: dict) -> str:
         f"{settings.get('augment', {}).get('zoom_target', 0.0):.0%} of the crops"
         + (f" ({settings['augment']['zoom_other']:.0%} of them centred on another boat instead)"
            if settings.get("augment", {}).get("zoom_other") else "")
+        + (f"; in {settings['augment']['paste_target']:.0%} of the frames a copy of another frame's vessel of interest "
+           f"pasted on its rows, at most {settings['augment']['paste_shift_px']:g} px from its place"
+           if settings.get("augment", {}).get("paste_target") else "")
         + ", flips, HSV jitter, horizon shifts;"
         + (f" boxes under {settings['class_min_height_px']:g} network px teach no class;"
            if settings.get("class_min_height_px") else ""),

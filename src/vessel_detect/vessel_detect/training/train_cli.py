@@ -66,6 +66,13 @@ def add_parser(sub) -> None:
     train.add_argument("--zoom-other", type=float, default=defaults.augment.zoom_other,
                        help="share of the close-up crops centred on another boat of the frame instead of the vessel "
                             f"of interest (default {defaults.augment.zoom_other:g}: all on the vessel)")
+    train.add_argument("--paste-target", type=float, default=defaults.augment.paste_target,
+                       help="share of the training frames that first get a copy of another frame's vessel of interest "
+                            "(its GPS-generated box) on the same rows, clear of the other boxes (default "
+                            f"{defaults.augment.paste_target:g}: none)")
+    train.add_argument("--paste-shift", type=float, default=defaults.augment.paste_shift_px,
+                       help="how far left or right of where it was the copy may land, px (default "
+                            f"{defaults.augment.paste_shift_px:g}: anywhere on its rows; 0: its own place)")
     scale_range = ",".join(f"{v:g}" for v in defaults.augment.scale_range)
     train.add_argument("--scale-range", default=scale_range,
                        help="LO,HI: ordinary crops are resized by a factor drawn log-uniformly from this range (below "
@@ -168,12 +175,17 @@ def cmd_train(args: argparse.Namespace) -> int:
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
                              class_min_height_px=args.class_min_height, ema_decay=args.ema_decay,
                              augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
-                                                     zoom_other=args.zoom_other,
+                                                     zoom_other=args.zoom_other, paste_target=args.paste_target,
+                                                     paste_shift_px=args.paste_shift,
                                                      **_colour_jitter(args.colour_jitter)))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
     if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
         raise DataError(f"--zoom-other must be a share between 0 and 1, got {args.zoom_other}")
+    if not (math.isfinite(args.paste_target) and 0 <= args.paste_target <= 1):
+        raise DataError(f"--paste-target must be a share between 0 and 1, got {args.paste_target}")
+    if not (math.isfinite(args.paste_shift) and args.paste_shift >= 0):
+        raise DataError(f"--paste-shift must be a number of pixels >= 0, got {args.paste_shift}")
     if not (math.isfinite(args.ema_decay) and 0 <= args.ema_decay < 1):
         raise DataError(f"--ema-decay must be 0 (off) or a decay below 1 such as 0.99, got {args.ema_decay}")
     if not (math.isfinite(args.snap_widths) and 0 <= args.snap_widths <= 5):

@@ -135,6 +135,8 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
     average = WeightAverage(model, settings.ema_decay) if settings.ema_decay > 0 else None
     kept = model if average is None else average.model  # the weights validated and returned
     band_top = band_top_px(camera, settings.band_margin_px)
+    donors = [(images[(lab.video, lab.frame)], lab) for lab in labels if np.any(lab.classes == 0)] \
+        if settings.augment.paste_target > 0 else None
     steps_per_epoch = max(1, math.ceil(len(labels) / settings.batch_size))
     started = time.monotonic()
     history = []
@@ -147,7 +149,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
         fg = 0
         for first in range(0, len(order), settings.batch_size):
             batch = [labels[i] for i in order[first : first + settings.batch_size]]
-            samples = [random_sample(images[(lab.video, lab.frame)], lab, band_top, rng, settings.augment)
+            samples = [random_sample(images[(lab.video, lab.frame)], lab, band_top, rng, settings.augment, donors)
                        for lab in batch]
             for group in optimiser.param_groups:
                 group["lr"] = _lr_at(step, steps_per_epoch, settings)
