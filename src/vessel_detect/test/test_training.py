@@ -95,6 +95,22 @@ def _train_is_refused(options: list[str], message: str) -> None:
         cmd_train(parser.parse_args(["train", "--out", "m.onnx", *options]))
 
 
+def test_the_model_card_records_the_train_command_as_typed(monkeypatch):
+    """``./vessel detect train`` reaches detect_cli through vessel_tools.cli, whose argv starts with ``detect``."""
+    from vessel_detect import detect_cli
+    from vessel_detect.training.train_cli import recorded_command
+
+    seen = []
+    parser = argparse.ArgumentParser()
+    parser.add_argument("command")
+    parser.add_argument("--videos")
+    parser.set_defaults(func=lambda args: seen.append(recorded_command(args)) or 0)
+    monkeypatch.setattr(detect_cli, "build_parser", lambda: parser)
+    monkeypatch.setattr("sys.argv", ["vessel_tools/cli.py", "detect", "train", "--videos", "7-9"])
+    assert detect_cli.main(["train", "--videos", "7-9"]) == 0
+    assert seen == ["./vessel detect train --videos 7-9"]
+
+
 def test_the_snapping_options_are_checked():
     for options, message in ((["--snap-widths", "nan"], "--snap-widths"), (["--snap-widths", "-1"], "--snap-widths"),
                              (["--snap-detections", "x.csv"], "--snap-detections needs --snap-widths")):

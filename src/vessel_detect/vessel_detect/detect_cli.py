@@ -410,6 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: exit status 0, or 2 with one ``error:`` line for bad input."""
     args = build_parser().parse_args(argv)
+    args.command_line = list(sys.argv[1:] if argv is None else argv)  # what a model card records
     return int(args.func(args))
 
 

@@ -154,6 +154,11 @@ def coco_detections(args, dataset, frames, camera) -> dict:
     return {(v, f): (d.boxes_xyxy, d.scores) for v, f, d in rows}
 
 
+def recorded_command(args: argparse.Namespace) -> str:
+    """The ``./vessel detect train ...`` line a model card records: the arguments ``detect_cli.main`` was given."""
+    return "./vessel detect " + " ".join(getattr(args, "command_line", None) or sys.argv[1:])
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     """Generate labels, train, export, and describe the model."""
     from vessel_detect.dataset_detection import camera_for, open_dataset, parse_video_spec
@@ -240,7 +245,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     out.with_suffix(".labels.csv").write_text(labels_csv(labels))
     summary = {
         "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "command": "./vessel detect " + " ".join(sys.argv[1:]),
+        "command": recorded_command(args),
         "data": str(dataset.path), "videos": args.videos, "val_videos": args.val_videos or args.videos,
         "calibration": _relative(args.calib), "init_model": str(init_model), "settings": _jsonable(settings),
         "label_settings": _jsonable(label_settings), "label_counts": counts,
