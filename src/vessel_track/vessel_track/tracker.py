@@ -735,11 +735,10 @@ class MultiTargetTracker:
     def _base_height_log_std(self) -> float:
         return self.config.height_log_std if self.config.height_log_std > 0 else self.config.size_log_std
 
-    def _height_log_var(self, tracks: list[_Track]) -> np.ndarray:
+    def _height_log_var(self, tracks: list[_Track], heights: np.ndarray) -> np.ndarray:
         """(T,) variance of each track's ln(height) change to a box now: ``height_log_std``, grown by the rate."""
         cfg = self.config
         base = self._base_height_log_std
-        heights = np.array([t.size[1] for t in tracks], dtype=float)
         elapsed = np.array([max(t.stamp - t.last_seen, 0.0) for t in tracks], dtype=float)
         return base**2 + (cfg.height_log_std_rate * heights * elapsed) ** 2
 
@@ -775,13 +774,14 @@ class MultiTargetTracker:
         s10 = P[:, None, 1, 0] + np.zeros((1, n_dets))
         det = s00 * s11 - s01 * s10
         track_centers = np.array([t.center for t in tracks], dtype=float)                   # (T, 2)
+        track_sizes = np.array([t.size for t in tracks], dtype=float)                       # (T, 2)
         d = centers[None, :, :] - track_centers[:, None, :]                                  # (T, D, 2)
         dist = np.hypot(d[..., 0], d[..., 1])
         with np.errstate(divide="ignore", invalid="ignore"):
             mahalanobis2 = (d[..., 0] ** 2 * s11 - d[..., 0] * d[..., 1] * (s01 + s10) + d[..., 1] ** 2 * s00) / det
             log_det_S = np.log(det)
-            ratio = np.log(sizes[None, :, :] / np.array([t.size for t in tracks], dtype=float)[:, None, :])
-        height_var = self._height_log_var(tracks)[:, None]                                   # (T, 1)
+            ratio = np.log(sizes[None, :, :] / track_sizes[:, None, :])
+        height_var = self._height_log_var(tracks, track_sizes[:, 1])[:, None]               # (T, 1)
         # The height's own normaliser beyond the clutter cost's (0 while it is height_log_std).
         size_term = ((ratio[..., 0] / cfg.size_log_std) ** 2 + ratio[..., 1] ** 2 / height_var
                      + np.log(height_var / self._base_height_log_std**2))

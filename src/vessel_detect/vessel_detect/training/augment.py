@@ -21,11 +21,12 @@ its rows.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
+from vessel_detect.box_ops import intersection_areas
 from vessel_detect.detector import LETTERBOX_PAD_VALUE, horizon_band_top, letterbox
 
 
@@ -105,6 +106,12 @@ PASTE_TRIES = 10
 """Random places tried for a pasted vessel before the frame is left as it is."""
 
 
+def _feather(length: int, margin: float) -> np.ndarray:
+    """(length,) blend weights rising from the edges to 1 over ``margin`` pixels (at least one)."""
+    inside = np.minimum(np.arange(length) + 0.5, length - np.arange(length) - 0.5)
+    return np.clip(inside / max(margin, 1.0), 0, 1)
+
+
 def paste_target(bgr: np.ndarray, labels, donor_bgr: np.ndarray, donor_labels, rng: np.random.Generator,
                  settings: AugmentSettings):
     """``(image, labels)``: ``bgr`` with the donor frame's vessel of interest pasted in, or the inputs unchanged.
@@ -114,8 +121,6 @@ def paste_target(bgr: np.ndarray, labels, donor_bgr: np.ndarray, donor_labels, r
     added to the labels as class 0. Nothing is pasted when the donor has no vessel of interest or no place clear of
     the frame's boxes and ignore regions was found in ``PASTE_TRIES`` draws.
     """
-    from dataclasses import replace
-
     targets = donor_labels.boxes[donor_labels.classes == 0]
     if not len(targets):
         return bgr, labels
@@ -133,10 +138,7 @@ def paste_target(bgr: np.ndarray, labels, donor_bgr: np.ndarray, donor_labels, r
         left = px1 + rng.uniform(-settings.paste_shift_px, settings.paste_shift_px)
         left = int(round(min(max(left, 0.0), width - patch_w)))
         spot = np.array([left, py1, left + patch_w, py2], float)
-        clear = not len(occupied) or not np.any(
-            (occupied[:, 0] < spot[2]) & (occupied[:, 2] > spot[0]) & (occupied[:, 1] < spot[3])
-            & (occupied[:, 3] > spot[1]))
-        if clear:
+        if not np.any(intersection_areas(spot, occupied) > 0):
             break
     else:
         return bgr, labels
@@ -145,11 +147,7 @@ def paste_target(bgr: np.ndarray, labels, donor_bgr: np.ndarray, donor_labels, r
     if rng.random() < 0.5:
         patch = patch[:, ::-1]
         box = np.array([patch_w - box[2], box[1], patch_w - box[0], box[3]])
-    ramp_x = np.clip(np.minimum(np.arange(patch_w) + 0.5, patch_w - np.arange(patch_w) - 0.5) / max(margin_x, 1.0),
-                     0, 1)
-    ramp_y = np.clip(np.minimum(np.arange(patch_h) + 0.5, patch_h - np.arange(patch_h) - 0.5) / max(margin_y, 1.0),
-                     0, 1)
-    alpha = (ramp_y[:, None] * ramp_x[None, :])[..., None]
+    alpha = (_feather(patch_h, margin_y)[:, None] * _feather(patch_w, margin_x)[None, :])[..., None]
     image = bgr.copy()
     region = image[py1:py2, left:left + patch_w].astype(np.float32)
     image[py1:py2, left:left + patch_w] = np.clip(alpha * patch + (1 - alpha) * region + 0.5, 0, 255).astype(
