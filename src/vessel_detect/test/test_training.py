@@ -21,6 +21,7 @@ from vessel_detect.training.labels import (
     SizeModel,
     fit_size_model,
     frame_labels,
+    project_gps,
     robust_line_fit,
 )
 
@@ -115,6 +116,31 @@ def test_the_snapping_options_are_checked():
     for options, message in ((["--snap-widths", "nan"], "--snap-widths"), (["--snap-widths", "-1"], "--snap-widths"),
                              (["--snap-detections", "x.csv"], "--snap-detections needs --snap-widths")):
         _train_is_refused(options, message)
+
+
+def test_the_gps_gap_option_is_checked():
+    for value in ("nan", "0", "-3", "61"):
+        _train_is_refused(["--max-gps-gap", value], "--max-gps-gap")
+
+
+def test_a_frame_between_fixes_further_apart_than_max_gps_gap_is_not_projected():
+    """The vessel's position is interpolated only inside a gap no longer than ``max_gap_s``."""
+    from types import SimpleNamespace
+
+    from vessel_calib.camera_model import CameraModel
+    from vessel_calib.gps_track import GpsTrack
+
+    camera = CameraModel(np.array([[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]),
+                         -4.053e-07, camera_lat=32.70297, camera_lon=-117.234631)
+    start_lat, start_lon, _ = camera.screen_to_gps(600.0, 450.0)
+    end_lat, end_lon, _ = camera.screen_to_gps(680.0, 450.0)
+    dataset = SimpleNamespace(gps_track=lambda: GpsTrack([1000.0, 1008.0], [start_lat, end_lat], [start_lon, end_lon]))
+    frames = [SimpleNamespace(video=8, frame=100, stamp=1002.0)]
+    stale, = project_gps(dataset, camera, frames, max_gap_s=6.0)
+    assert not stale.valid and not stale.in_view
+    labelled, = project_gps(dataset, camera, frames, max_gap_s=10.0)
+    assert labelled.valid and labelled.in_view
+    assert 600.0 < labelled.point[0] < 640.0 and abs(labelled.point[1] - 450.0) < 5.0
 
 
 def test_stale_gps_leaves_the_frame_out_and_out_of_view_keeps_other_boats():

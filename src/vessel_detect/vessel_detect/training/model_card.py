@@ -39,8 +39,8 @@ def model_card(model_path: Path, summary: dict) -> str:
         f"- size model fitted to the COCO boxes at the GPS: w = {size.get('width', [0, 0])[0]:.0f}/|z_p| + "
         f"{size.get('width', [0, 0])[1]:.1f}, h = {size.get('height', [0, 0])[0]:.0f}/|z_p| + "
         f"{size.get('height', [0, 0])[1]:.1f} px ({size.get('n_points')} boxes);",
-        "- every other COCO box scoring 0.3 or more is a `vessel`; weaker ones are ignore regions; frames with "
-        "stale GPS are left out;",
+        "- every other COCO box scoring 0.3 or more is a `vessel`; weaker ones are ignore regions; frames between "
+        f"GPS fixes more than {summary.get('label_settings', {}).get('max_gps_gap_s', 6.0):g} s apart are left out;",
         f"- frames: {counts}. All generated boxes: `{model_path.with_suffix('.labels.csv').name}`.",
         "",
         "## Training",

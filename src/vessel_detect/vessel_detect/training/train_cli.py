@@ -45,6 +45,9 @@ def add_parser(sub) -> None:
                             "(default config/detector_coco.yaml)")
     train.add_argument("--coco-detections", help="a saved `detect run --params config/detector_coco.yaml` CSV of "
                        "these frames (default: run the COCO detector now)")
+    train.add_argument("--max-gps-gap", type=float, default=LabelSettings().max_gps_gap_s,
+                       help="longest time between the two GPS fixes bracketing a frame for its position to be "
+                            "interpolated and the frame labelled, s; frames in longer gaps are left out (default 6)")
     train.add_argument("--snap-widths", type=float, default=LabelSettings().snap_widths,
                        help="a vessel box no COCO box matched moves onto the nearest seed box of its size within this "
                             "many box widths (the projection misses far boats by about one; default 0: off)")
@@ -195,6 +198,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise DataError(f"--ema-decay must be 0 (off) or a decay below 1 such as 0.99, got {args.ema_decay}")
     if not (math.isfinite(args.snap_widths) and 0 <= args.snap_widths <= 5):
         raise DataError(f"--snap-widths must be a number of box widths between 0 and 5, got {args.snap_widths}")
+    if not (math.isfinite(args.max_gps_gap) and 0 < args.max_gps_gap <= 60):
+        raise DataError(f"--max-gps-gap must be a number of seconds above 0 and at most 60, got {args.max_gps_gap}")
     if args.snap_detections and not args.snap_widths > 0:
         raise DataError("--snap-detections needs --snap-widths above 0 (the seed boxes are used only for snapping)")
     if not (math.isfinite(settings.class_min_height_px) and settings.class_min_height_px >= 0):
@@ -215,7 +220,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise DataError(f"start model {init_model} not found: pass --init-model yolox_nano.onnx (the COCO YOLOX-Nano)")
     water = _water_levels(args, args.params)
     detections = coco_detections(args, dataset, frames, camera)
-    label_settings = LabelSettings(snap_widths=args.snap_widths)
+    label_settings = LabelSettings(max_gps_gap_s=args.max_gps_gap, snap_widths=args.snap_widths)
     snap_detections = None
     if args.snap_detections:
         from vessel_detect.detections_csv import read_detections_csv
