@@ -128,10 +128,10 @@ def test_a_frame_between_fixes_further_apart_than_max_gps_gap_is_not_projected()
     from types import SimpleNamespace
 
     from vessel_calib.camera_model import CameraModel
+    from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
     from vessel_calib.gps_track import GpsTrack
 
-    camera = CameraModel(np.array([[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]),
-                         -4.053e-07, camera_lat=32.70297, camera_lon=-117.234631)
+    camera = CameraModel.from_params(DEFAULT_CAMERA_PARAMETERS)
     start_lat, start_lon, _ = camera.screen_to_gps(600.0, 450.0)
     end_lat, end_lon, _ = camera.screen_to_gps(680.0, 450.0)
     dataset = SimpleNamespace(gps_track=lambda: GpsTrack([1000.0, 1008.0], [start_lat, end_lat], [start_lon, end_lon]))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vessel_detect.training.labels import LabelSettings
+
 
 def model_card(model_path: Path, summary: dict) -> str:
     """Markdown describing the model from the training run's ``summary`` (the ``.json`` next to it)."""
@@ -12,6 +14,7 @@ def model_card(model_path: Path, summary: dict) -> str:
     validation = summary.get("validation") or {}
     size = summary.get("size_model") or {}
     settings = summary.get("settings") or {}
+    max_gps_gap_s = (summary.get("label_settings") or {}).get("max_gps_gap_s", LabelSettings().max_gps_gap_s)
     counts = ", ".join(f"{k} {v}" for k, v in sorted((summary.get("label_counts") or {}).items()))
     lines = [
         f"# {model_path.name}",
@@ -40,7 +43,7 @@ def model_card(model_path: Path, summary: dict) -> str:
         f"{size.get('width', [0, 0])[1]:.1f}, h = {size.get('height', [0, 0])[0]:.0f}/|z_p| + "
         f"{size.get('height', [0, 0])[1]:.1f} px ({size.get('n_points')} boxes);",
         "- every other COCO box scoring 0.3 or more is a `vessel`; weaker ones are ignore regions; frames between "
-        f"GPS fixes more than {summary.get('label_settings', {}).get('max_gps_gap_s', 6.0):g} s apart are left out;",
+        f"GPS fixes more than {max_gps_gap_s:g} s apart are left out;",
         f"- frames: {counts}. All generated boxes: `{model_path.with_suffix('.labels.csv').name}`.",
         "",
         "## Training",

@@ -47,7 +47,8 @@ def add_parser(sub) -> None:
                        "these frames (default: run the COCO detector now)")
     train.add_argument("--max-gps-gap", type=float, default=LabelSettings().max_gps_gap_s,
                        help="longest time between the two GPS fixes bracketing a frame for its position to be "
-                            "interpolated and the frame labelled, s; frames in longer gaps are left out (default 6)")
+                            "interpolated and the frame labelled, s; frames in longer gaps are left out "
+                            "(default %(default)g)")
     train.add_argument("--snap-widths", type=float, default=LabelSettings().snap_widths,
                        help="a vessel box no COCO box matched moves onto the nearest seed box of its size within this "
                             "many box widths (the projection misses far boats by about one; default 0: off)")
