@@ -45,6 +45,9 @@ def test_minimal_folder_optional_files_absent(tmp_path):
     assert ds.frames()[1].stamp - ds.frames()[0].stamp == 4.0
     with pytest.raises(DataError, match="no calibration"):
         ds.camera_model()
+    assert ds.check_videos([7]) == [7] and ds.check_videos(None) == [7] and ds.check_videos("7") == [7]
+    with pytest.raises(DataError, match=r"video\(s\) 8, 99 not in .*frames.csv \(it has 7\); fix --videos"):
+        ds.check_videos([99, 7, 8])
 
 
 def test_seconds_of_day_across_midnight(tmp_path):

@@ -234,6 +234,21 @@ class Dataset:
         """Video numbers present in frames.csv."""
         return sorted({f.video for f in self.frames()})
 
+    def check_videos(self, videos) -> list[int]:
+        """``videos`` (None: all), when every one is in frames.csv; else DataError naming those that are not.
+
+        A mistyped video number would otherwise select no frame and pass as an empty, successful run.
+        """
+        available = self.videos()
+        wanted = available if videos is None else sorted(_video_set(videos))
+        unknown = [v for v in wanted if v not in available]
+        if unknown:
+            raise DataError(
+                f"video(s) {', '.join(map(str, unknown))} not in {self.path / 'frames.csv'} "
+                f"(it has {', '.join(map(str, available)) or 'none'}); fix --videos"
+            )
+        return wanted
+
     def video_splits(self) -> dict[int, str]:
         """Video -> split (train/val/...) from videos.csv; empty if the file is absent."""
         path = self.path / "videos.csv"

@@ -35,3 +35,39 @@ def test_other_errors_are_not_hidden():
 
     with pytest.raises(ZeroDivisionError):  # a programming error surfaces with its traceback
         command_line_tool(tool)(None)
+
+
+def test_a_file_system_error_on_a_path_is_one_error_line_naming_it(tmp_path, capsys):
+    """An output folder under a file used to end in a FileExistsError traceback."""
+    in_the_way = tmp_path / "results.csv"
+    in_the_way.write_text("kept\n")
+
+    def tool(argv):
+        (in_the_way / "out").mkdir(parents=True)
+
+    assert command_line_tool(tool)(None) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: a file stands where a folder is needed") and str(in_the_way) in err
+    assert err.count("\n") == 1
+    assert in_the_way.read_text() == "kept\n"
+
+
+def test_an_os_error_without_a_path_keeps_its_traceback():
+    def tool(argv):
+        raise ConnectionResetError(104, "Connection reset by peer")
+
+    with pytest.raises(ConnectionResetError):
+        command_line_tool(tool)(None)
+
+
+def test_an_output_file_is_checked_before_the_work(tmp_path):
+    from vessel_common.errors import DataError
+    from vessel_common.paths import output_file
+
+    assert output_file(tmp_path / "a" / "b.csv") == tmp_path / "a" / "b.csv"
+    assert (tmp_path / "a").is_dir()
+    with pytest.raises(DataError, match="is a folder"):
+        output_file(tmp_path / "a")
+    (tmp_path / "file").write_text("")
+    with pytest.raises(FileExistsError):  # turned into one error line by command_line_tool
+        output_file(tmp_path / "file" / "b.csv")

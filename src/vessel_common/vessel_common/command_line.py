@@ -1,7 +1,8 @@
 """The end every command-line tool of the project shares: one ``error:`` line and exit 2, or exit 130 on Ctrl-C.
 
 A tool's ``main(argv)`` raises ``VesselError`` for bad input (a missing file, a wrong value) and lets Ctrl-C
-through; ``@command_line_tool`` turns either into the documented exit, with no traceback. ``vessel_tools.cli``
+through; ``@command_line_tool`` turns either, and a file-system error on a path (an output folder under a file,
+no permission, a full disk), into the documented exit, with no traceback. ``vessel_tools.cli``
 runs every tool through the same ``main`` functions, so ``./vessel TOOL``, ``python -m MODULE`` and
 ``ros2 run vessel_tools TOOL`` end the same way.
 """
@@ -12,7 +13,7 @@ import functools
 import sys
 from collections.abc import Callable, Sequence
 
-from vessel_common.errors import VesselError
+from vessel_common.errors import VesselError, file_system_problem
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -30,6 +31,12 @@ def command_line_tool(run: Main | None = None, *, interrupted: str = "interrupte
                 status = function(argv)
             except VesselError as error:
                 print(f"error: {error}", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            except OSError as error:
+                problem = file_system_problem(error)
+                if problem is None:
+                    raise
+                print(f"error: {problem}", file=sys.stderr)
                 return EXIT_BAD_INPUT
             except KeyboardInterrupt:
                 print(interrupted, file=sys.stderr)

@@ -19,3 +19,26 @@ class DataError(VesselError):
 
 class ModelError(VesselError):
     """A detector model is missing, corrupt or has an unsupported interface."""
+
+
+def file_system_problem(error: OSError) -> str | None:
+    """One line naming the path a file-system call failed on and what to do; None when no path is involved.
+
+    Tools print this instead of a traceback when an output folder lies under a file, a folder is not writable,
+    or a disk is full; an ``OSError`` without a path (a socket, a signal) is a bug and keeps its traceback.
+    """
+    if error.filename is None:
+        return None
+    import errno
+
+    paths = f"{error.filename}" + (f" -> {error.filename2}" if error.filename2 is not None else "")
+    if isinstance(error, FileExistsError | NotADirectoryError):
+        reason = "a file stands where a folder is needed"
+    elif isinstance(error, PermissionError):
+        reason = "no permission"
+    elif error.errno == errno.ENOSPC:
+        reason = "the disk is full"
+    else:
+        reason = error.strerror or type(error).__name__
+    return (f"{reason} ({paths}): every folder on an output path must be a folder you may write to, on a disk "
+            "with room; fix the path or give another")

@@ -30,7 +30,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from vessel_common.errors import DataError, VesselError
+from vessel_common.errors import DataError, VesselError, file_system_problem
 from vessel_common.imports import import_serialized
 from vessel_common.parameter_names import flatten
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
@@ -580,6 +580,12 @@ def run_node(
         status = int(getattr(node, "exit_status", 0))
     except VesselError as error:
         print(f"error: {error}", file=sys.stderr)
+        status = 2
+    except OSError as error:
+        problem = file_system_problem(error)
+        if problem is None:
+            raise
+        print(f"error: {problem}", file=sys.stderr)
         status = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         status = 0

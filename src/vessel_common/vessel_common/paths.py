@@ -84,3 +84,17 @@ def parse_videos(spec: str | Iterable[int] | None) -> list[int] | None:
     if not videos:
         raise DataError(f"bad video list {spec!r}: it names no video")
     return sorted(videos)
+
+
+def output_file(path: str | Path) -> Path:
+    """``path``, with the folder it goes in made now: a tool checks its output before the work that fills it.
+
+    A path under a file or in a folder that is not writable fails here, at once, instead of after a long run.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise DataError(f"output {path} is a folder: give a file name")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not os.access(path.parent, os.W_OK):
+        raise DataError(f"cannot write into {path.parent}: no permission; give another output path")
+    return path

@@ -292,3 +292,26 @@ def test_a_bag_cut_in_half_gives_what_it_holds_and_says_where_it_stops(tmp_path)
     empty.write_bytes(b"")
     with pytest.raises(DataError, match="nothing readable"):
         bag_io.salvage_mcap(empty)
+
+
+def test_recover_to_an_existing_folder_needs_overwrite_and_never_deletes_the_damaged_bag(tmp_path):
+    """`bag recover --out DIR` used to empty DIR without asking, even when DIR held the bag being recovered."""
+    bag = tmp_path / "work" / "recording"
+    synthetic.write_bag(bag, frames=3)
+    kept = tmp_path / "results"
+    kept.mkdir()
+    (kept / "results.csv").write_text("keep\n")
+    with pytest.raises(DataError, match="exists already.*--overwrite"):
+        bag_io.recover_bag(bag, kept)
+    assert (kept / "results.csv").read_text() == "keep\n"
+    for holder in (bag, tmp_path / "work"):
+        with pytest.raises(DataError, match="delete what is being recovered"):
+            bag_io.recover_bag(bag, holder, overwrite=True)
+    assert bag_io.mcap_file_of(bag).is_file()
+    bag_io.recover_bag(bag, kept, overwrite=True)
+    with bag_io.BagReader(kept) as reader:
+        assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3
+    fresh = tmp_path / "fresh"
+    bag_io.recover_bag(bag, fresh)
+    with bag_io.BagReader(fresh) as reader:
+        assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3

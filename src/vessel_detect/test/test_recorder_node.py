@@ -138,3 +138,19 @@ def test_recorder_writes_a_readable_bag_after_sigint(tmp_path, ros_env, ros_cont
         assert reader.topics["/notes"] == "std_msgs/msg/String"  # type taken from the graph
         assert reader.fixes("/camera/fix").lats[0] == 32.70297
     assert sum(1 for m in bag_io.iter_mcap(output) if m.topic == "/vessel/fix") == count  # mcap reads it too
+
+
+def test_an_output_that_exists_or_cannot_be_made_is_one_error_line_and_nothing_is_touched(tmp_path, ros_env):
+    """The recorder used to tell a node user to "pass --overwrite", and to end in a traceback under a file."""
+    existing = tmp_path / "bag"
+    existing.mkdir()
+    (existing / "kept.mcap").write_bytes(b"kept")
+    in_the_way = tmp_path / "notes.txt"
+    in_the_way.write_text("kept\n")
+    for output, message in ((existing, "-p overwrite:=true"), (in_the_way / "bag", "a file stands where a folder")):
+        run = subprocess.run([str(RECORDER_EXE), "--ros-args", "-p", f"output:={output}"], env=ros_env,
+                             capture_output=True, text=True, timeout=120)
+        assert run.returncode == 2, run.stderr[-2000:]
+        assert run.stderr.startswith("error: ") and message in run.stderr and "Traceback" not in run.stderr, \
+            run.stderr[-2000:]
+    assert (existing / "kept.mcap").read_bytes() == b"kept" and in_the_way.read_text() == "kept\n"

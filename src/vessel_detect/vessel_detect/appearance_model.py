@@ -19,6 +19,7 @@ import io
 import math
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -248,9 +249,10 @@ class AppearanceModel:
                 size_model = tuple(data["size_model"].tolist()) if "size_model" in data else None
                 return cls(data["mean"], data["scale"], data["weights"], float(data["bias"]), str(data["source"]),
                            feature_set, size_model)
-        except (OSError, KeyError, ValueError) as error:
-            raise ModelError(f"{path}: not an appearance model ({error}); re-run `./vessel appearance "
-                             f"fit`") from None
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as error:
+            # an empty file raises EOFError, a cut one BadZipFile
+            raise ModelError(f"{path}: not an appearance model ({error or type(error).__name__}); re-run "
+                             "`./vessel appearance fit`") from None
         except ModelError as error:
             raise ModelError(f"{path}: {error}; re-run `./vessel appearance fit`") from None
 

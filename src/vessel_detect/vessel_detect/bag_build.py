@@ -244,14 +244,7 @@ def build_from_dataset(
     """One bag per video of a dataset folder, `out_dir/video_<N>`; returns what each holds."""
     options = options or BuildOptions()
     dataset = Dataset(data_dir)
-    available = dataset.videos()
-    wanted = available if videos is None else videos
-    unknown = [v for v in wanted if v not in available]
-    if unknown:
-        raise DataError(
-            f"video(s) {', '.join(map(str, unknown))} not in {dataset.path / 'frames.csv'} "
-            f"(it has {', '.join(map(str, available)) or 'none'})"
-        )
+    wanted = dataset.check_videos(videos)
     if not options.overwrite:
         existing = [out_dir / f"video_{v}" for v in wanted if (out_dir / f"video_{v}").exists()]
         if existing:
@@ -406,7 +399,8 @@ def _parser() -> argparse.ArgumentParser:
                       "where it breaks, rewritten with its index and metadata.yaml (in place, or to --out)")
     parser.add_argument("--videos", help="dataset videos, e.g. 13,14 or 7-12 (default: all)")
     parser.add_argument("--out", type=Path, help="folder for the bags (default: <repo>/bags)")
-    parser.add_argument("--overwrite", action="store_true", help="replace bags that exist already")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace bags (or a --recover --out) that exist already")
 
     video = parser.add_argument_group("video mode")
     video.add_argument("--start-utc", help="UTC time of the video's first frame (ISO-8601 or epoch seconds)")
@@ -501,7 +495,7 @@ def run(argv: list[str] | None = None) -> int:
             print(bag_io.bag_info(path))
         return 0
     if args.recover:
-        salvage = bag_io.recover_bag(args.recover, args.out)
+        salvage = bag_io.recover_bag(args.recover, args.out, overwrite=args.overwrite)
         print(f"recovered {args.out or args.recover}: {salvage.describe()}")
         return 0 if salvage.stopped_at is None else 1
     if args.data is not None and args.video is not None:

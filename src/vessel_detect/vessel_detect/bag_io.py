@@ -520,6 +520,7 @@ class BagReader:
         detail = str(exc) or type(exc).__name__
         return DataError(
             f"bag {self.path} is damaged ({self._storage_files()}: {detail}); the file is truncated or corrupt: "
+            f"`./vessel bag recover {self.path} --out NEW` keeps every message up to the damage; else "
             f"{BUILD_HINT}, or re-record it"
         )
 
@@ -824,13 +825,24 @@ class SalvagedBagReader:
             raise DataError(f"message on {message.topic} in {self.path} does not parse as {msgtype}: {exc}") from exc
 
 
-def recover_bag(path: str | Path, out: str | Path | None = None) -> Salvage:
+def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: bool = False) -> Salvage:
     """Rebuild a readable bag (MCAP with its summary, and metadata.yaml) from what ``salvage_mcap`` recovers.
 
     ``out`` None replaces a bag folder in place; the damaged file is kept beside the folder as
-    ``<folder>.damaged.mcap``.
+    ``<folder>.damaged.mcap``. An ``out`` that exists is replaced only with ``overwrite``, and never when the
+    damaged bag is inside it (that would delete what is being recovered).
     """
     path = Path(path)
+    if out is not None:
+        target = Path(out)
+        source, resolved = path.resolve(), target.resolve()
+        if resolved == source or resolved in source.parents:
+            raise DataError(
+                f"--out {target} holds the damaged bag {path}: replacing it would delete what is being recovered; "
+                "give a new folder, or leave --out out to recover a bag folder in place"
+            )
+        if target.exists() and not overwrite:
+            raise DataError(f"--out {target} exists already: give a new folder, or pass --overwrite to replace it")
     salvage = salvage_mcap(path)
     if out is None:
         if not path.is_dir():
@@ -839,8 +851,6 @@ def recover_bag(path: str | Path, out: str | Path | None = None) -> Salvage:
         salvage.file.replace(kept)
         salvage.file = kept
         target = path
-    else:
-        target = Path(out)
     with BagWriter(target, overwrite=True) as writer:
         for topic, msgtype in salvage.msgtypes.items():
             writer.add_topic(topic, msgtype)

@@ -29,7 +29,7 @@ import numpy as np
 
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
-from vessel_common.paths import repo_file
+from vessel_common.paths import output_file, repo_file
 from vessel_detect.dataset_detection import (
     camera_for,
     detect_frames,
@@ -37,7 +37,7 @@ from vessel_detect.dataset_detection import (
     open_dataset,
     parse_video_spec,
 )
-from vessel_detect.detections_csv import read_detections_csv
+from vessel_detect.detections_csv import read_detections_csv, require_rows_for
 from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import build_detector, load_params_file
 from vessel_detect.recall import GPS_MARGIN_PX, HIT_IOU, RecallResult, gps_ranking, recall_at  # noqa: F401
@@ -56,6 +56,7 @@ def _atomic_write(path: Path, text: str) -> None:
 # ---------------------------------------------------------------------------------------------------- run
 def cmd_run(args: argparse.Namespace) -> int:
     """``run``: detections of every frame to CSV."""
+    out = output_file(args.out)
     dataset = open_dataset(args.data)
     values, params_camera = load_params_file(args.params)
     if args.no_cue:
@@ -66,7 +67,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise DataError(f"no frames for videos {args.videos or 'all'} in {dataset.path / 'frames.csv'}")
     print(f"detecting in {len(frames)} frames of {dataset.path} ({_describe(detector)})", file=sys.stderr)
     rows = [(r.video, r.frame, d) for r, d in detect_frames(detector, frames, not args.quiet)]
-    out = Path(args.out)
     _atomic_write(out, detections_csv_text(rows))
     total = sum(len(d) for _, _, d in rows)
     print(f"wrote {out}: {total} detections in {len(rows)} frames", file=sys.stderr)
@@ -106,6 +106,7 @@ def cmd_recall(args: argparse.Namespace) -> int:
     camera = camera_for(dataset, params_camera, args.calib)
     if args.detections:
         detections = read_detections_csv(Path(args.detections))
+        require_rows_for(detections, videos, Path(args.detections))
         source = f"detections from {args.detections}"
         default_threshold = 0.0
     else:
@@ -166,7 +167,9 @@ def cmd_rank(args: argparse.Namespace) -> int:
     if not points:
         raise DataError(f"no frame of videos {args.videos} in {dataset.path} has the vessel's GPS in view with a "
                         "screen point: the ranking needs gt_1hz.csv with valid, in_view, x_ref and y_ref")
-    summary = gps_ranking(points, read_detections_csv(Path(args.detections)), args.margin_px).as_dict()
+    detections = read_detections_csv(Path(args.detections))
+    require_rows_for(detections, videos, Path(args.detections))
+    summary = gps_ranking(points, detections, args.margin_px).as_dict()
     print(f"the vessel of interest at its GPS, videos {args.videos}, detections {args.detections}: a box within "
           f"{args.margin_px:g} px of the GPS point (gt_1hz.csv), and the box of highest p_target there")
     print("     range m   frames   a box there   top box there")

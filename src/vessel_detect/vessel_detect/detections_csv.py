@@ -59,5 +59,23 @@ def read_detections_csv(path: Path, missing_hint: str = "write one with './vesse
             except (TypeError, ValueError):
                 raise DataError(f"{path}, row {line}: video, frame, x1..y2 and score must be numbers, got "
                                 f"{row}") from None
+            if not all(math.isfinite(v) for v in values):
+                raise DataError(f"{path}, row {line}: x1..y2, score and p_target must be finite numbers (or "
+                                f"p_target empty), got {row}; fix or delete the row")
             grouped.setdefault(key, []).append(values)
     return {k: (np.asarray(v)[:, :4], np.asarray(v)[:, 4]) for k, v in grouped.items()}
+
+
+def require_rows_for(detections: dict, videos, path: Path) -> None:
+    """DataError unless ``detections`` (``read_detections_csv``) has a box in one of ``videos`` (None: any).
+
+    A file written for other videos, or an empty one, would otherwise be scored as a detector that found nothing.
+    """
+    wanted = None if videos is None else set(videos)
+    if any(wanted is None or video in wanted for video, _ in detections):
+        return
+    found = sorted({video for video, _ in detections})
+    held = f"its boxes are in videos {', '.join(map(str, found))}" if found else "it holds no box at all"
+    which = "any video" if wanted is None else f"videos {', '.join(map(str, sorted(wanted)))}"
+    raise DataError(f"{path} has no box in {which} ({held}): give the detections of these videos "
+                    f"(`./vessel detect run --videos ... --out FILE.csv`) or fix --videos")

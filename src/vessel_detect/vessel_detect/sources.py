@@ -740,6 +740,27 @@ def parse_device(spec: str) -> int | str | None:
     return None
 
 
+def check_source(spec: str | Path) -> int | str | None:
+    """The device ``spec`` names (``parse_device``), else None once its path is known to exist; else DataError.
+
+    What ``open_source`` checks first; a launcher checks it before it starts a graph that would wait for a camera
+    that cannot start.
+    """
+    text = str(spec).strip()
+    if not text:
+        raise DataError("no source given: name a bag folder, .mcap, video file, image folder or device:N")
+    device = parse_device(text)
+    if device is not None:
+        return device
+    path = Path(text).expanduser()
+    if not path.exists():
+        raise DataError(
+            f"source {path} does not exist (expected a bag folder, .mcap file, video file, image folder, or "
+            "device:N)"
+        )
+    return None
+
+
 def open_source(
     spec: str | Path,
     *,
@@ -757,18 +778,10 @@ def open_source(
     `options` go to every source (`start_offset_s`, `loop`, `restamp_loops`, `on_problem`, `strict_order`).
     `fps` is the folder's frame rate, a video's forced rate, or a device's requested rate.
     """
-    text = str(spec).strip()
-    if not text:
-        raise DataError("no source given: name a bag folder, .mcap, video file, image folder or device:N")
-    device = parse_device(text)
+    device = check_source(spec)
     if device is not None:
         return DeviceSource(device, width=device_width, height=device_height, fps=fps or 0.0, **options)
-    path = Path(text).expanduser()
-    if not path.exists():
-        raise DataError(
-            f"source {path} does not exist (expected a bag folder, .mcap file, video file, image folder, or "
-            "device:N)"
-        )
+    path = Path(str(spec).strip()).expanduser()
     if path.is_dir():
         if (path / "metadata.yaml").is_file() or any(path.glob("*.mcap")):
             return BagSource(path, image_topic=image_topic, aux_topics=aux_topics, **options)

@@ -52,6 +52,17 @@ def test_pairs_csv_to_yaml_and_picture(tmp_path, pairs_csv, capsys):
     assert sorted(p.name for p in out.parent.iterdir()) == ["camera.png", "camera.yaml"]
 
 
+def test_a_non_finite_pair_is_refused_by_its_file_row(tmp_path, pairs_csv, capsys):
+    """A nan used to reach the fit and be reported as "pair 3", an index that is not the file's row 5."""
+    lines = pairs_csv.read_text().splitlines()
+    lines[4] = ",".join([*lines[4].split(",")[:2], "nan", lines[4].split(",")[3]])
+    pairs_csv.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "camera.yaml"
+    status, _, err = run_cli(["--pairs-csv", pairs_csv, *CAM_ARGS, "--out", out, "--no-picture"], capsys)
+    assert status == 2 and "pairs.csv, row 5, column 'lat': expected a finite number, got 'nan'" in err, err
+    assert not out.exists()
+
+
 def test_pairs_with_times_and_gpx(tmp_path, capsys):
     cam = pinhole_camera()
     screen, gps = synthetic_pairs(cam, 12, seed=22)
@@ -78,7 +89,7 @@ def test_pairs_with_times_and_gpx(tmp_path, capsys):
 @pytest.mark.parametrize("case, match", [
     ("few", "at least 5"),
     ("four", "passes through them exactly"),
-    ("nan", "pair 1"),
+    ("nan", "row 3, column 'x': expected a finite number"),  # the file's row, not the pair's index
     ("dup", "same screen point"),
     ("collinear", "collinear"),
     ("sky", "above the fitted horizon"),

@@ -97,3 +97,41 @@ def test_a_camera_and_detector_alone_start_at_once_with_no_wait(ros_env, tmp_pat
                           str(tmp_path / "logs")], env=ros_env, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
     assert "started camera" in run.stderr and "did not connect" not in run.stderr
+
+
+def test_ctrl_c_ends_the_wait_for_the_graph_to_connect():
+    """Ctrl-C (the handler sets ``stop``) used to go unheeded until the connection time-out, a minute later."""
+    import threading
+    import time
+
+    class NeverConnected:
+        def connected(self, **links):
+            return False
+
+        def detector_connected(self):
+            return False
+
+        def spin(self, seconds):
+            time.sleep(0.01)
+
+    class NothingFailed:
+        def failed(self):
+            return []
+
+    stop = threading.Event()
+    threading.Timer(0.2, stop.set).start()
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        graph.wait_until_connected(NothingFailed(), NeverConnected(), 60.0, "nowhere", stop, detector_only=True)
+    assert time.monotonic() - started < 30.0
+
+
+def test_a_camera_source_that_does_not_exist_is_refused_before_any_node_starts(tmp_path, capsys, monkeypatch):
+    def no_process(*args, **kwargs):
+        raise AssertionError("a node was started")
+
+    monkeypatch.setattr(graph.GraphRunner, "start", no_process)
+    for nodes in ("camera,detector", "camera,detector,tracker,fuser,gps_publisher"):
+        assert graph.main(["--source", str(tmp_path / "video_99"), "--nodes", nodes]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: source ") and "video_99 does not exist" in err, err

@@ -39,3 +39,17 @@ def test_a_missing_or_foreign_file_is_one_error_line(tmp_path, capsys):
     broken.write_text("{")
     assert results_page.main([str(broken)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_a_summary_of_the_wrong_shape_is_one_error_line(tmp_path, capsys):
+    """`{"online": "x"}` used to end in an AttributeError traceback, `{"online": {}}` in an empty page."""
+    cases = {"string": {"online": "x"}, "empty": {"online": {}},
+             "bad_block": {"online": {"splits": {"13-16": "x"}}}, "bad_runs": dict(SUMMARY, runs=[3])}
+    for name, summary in cases.items():
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(summary))
+        out = tmp_path / f"{name}.md"
+        assert results_page.main([str(path), "--out", str(out)]) == 2, name
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1 and "summary.json of ./vessel demo" in err, err
+        assert not out.exists()

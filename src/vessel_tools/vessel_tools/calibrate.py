@@ -323,9 +323,13 @@ def read_pairs_csv(path, gps_path=None, max_gap_s: float = 3.0, anchor: float = 
     def num(i, col):
         text = rows[i].get(col, "")
         try:
-            return float(text)
+            value = float(text)
         except ValueError:
             raise DataError(f"{path}, row {i + 2}, column '{col}': expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise DataError(f"{path}, row {i + 2}, column '{col}': expected a finite number, got {text!r}; fix or "
+                            "drop that row")
+        return value
 
     screen, gps = [], []
     dropped = 0

@@ -274,11 +274,13 @@ class GraphRunner:
         return "\n".join(running.log_path.read_text(errors="replace").splitlines()[-lines:])
 
 
-def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: float, where: str, **links) -> None:
+def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: float, where: str,
+                         stop: threading.Event | None = None, **links) -> None:
     """Spin ``watcher`` until the graph is connected (``GraphWatcher.connected(**links)``), before the camera.
 
     A frame published before every link is matched is lost without a count; this is what keeps the first frames.
-    Raises VesselError naming the node that stopped meanwhile, or the time-out (``where``: where to look).
+    Raises VesselError naming the node that stopped meanwhile, or the time-out (``where``: where to look), and
+    KeyboardInterrupt once ``stop`` is set (Ctrl-C while waiting).
     """
     deadline = time.monotonic() + timeout_s
     detector_only = links.pop("detector_only", False)
@@ -293,6 +295,8 @@ def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: 
         else:
             connected_since = None
         watcher.spin(0.1)
+        if stop is not None and stop.is_set():
+            raise KeyboardInterrupt
         failed = runner.failed()
         if failed:
             raise VesselError(f"node(s) {failed} stopped at start:\n{runner.log_tail(failed[0])}")
@@ -405,6 +409,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if unknown:
             raise VesselError(f"unknown node(s) {unknown}: choose from {sorted(known)}")
         runner = GraphRunner(params, log_dir=args.log_dir, echo=True)
+        if "camera" in wanted:  # before any node starts: the camera would fail only after the graph connected
+            from vessel_detect.sources import check_source
+
+            check_source(args.source or str(runner.file_parameters("camera").get("source") or ""))
         stop_requested = threading.Event()
         signal.signal(signal.SIGINT, lambda *_: stop_requested.set())
         signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
@@ -436,7 +444,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 watcher = GraphWatcher()
                 try:
                     wait_until_connected(runner, watcher, args.connect_timeout, "see the nodes' output above",
-                                         with_recorder=args.record is not None, spares=set(runner.spares))
+                                         stop_requested, with_recorder=args.record is not None,
+                                         spares=set(runner.spares))
                 finally:
                     watcher.close()
                 print("[graph] every link from the detector to the GPS publisher is matched", file=sys.stderr)
@@ -444,7 +453,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 watcher = GraphWatcher()
                 try:
                     wait_until_connected(runner, watcher, args.connect_timeout, "is the tracker running and "
-                                         "reachable (same ROS_DOMAIN_ID and network)?", detector_only=True)
+                                         "reachable (same ROS_DOMAIN_ID and network)?", stop_requested,
+                                         detector_only=True)
                 finally:
                     watcher.close()
                 print("[graph] the detector's output is matched by a tracker", file=sys.stderr)
@@ -475,7 +485,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
         return 0 if all(code == 0 for name, code in statuses.items() if not name.endswith("(standby)")) else 1
-    except VesselError:
+    except (VesselError, KeyboardInterrupt):
         if runner is not None:  # never leave started nodes behind
             runner.stop()
         raise

@@ -114,9 +114,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             from None
     except (OSError, json.JSONDecodeError) as error:
         raise DataError(f"{args.summary} is not a demo summary ({error}); give out/DIR/summary.json") from None
-    if not isinstance(summary, dict) or "online" not in summary:
+    online = summary.get("online") if isinstance(summary, dict) else None
+    if not isinstance(online, dict) or not (online.get("splits") or online.get("per_video")):
         raise DataError(f"{args.summary} has no 'online' scores: give the summary.json of ./vessel demo")
-    page = render(summary, args.summary, args.title, args.command)
+    try:
+        page = render(summary, args.summary, args.title, args.command)
+    except (AttributeError, KeyError, TypeError, ValueError) as error:  # a block of the wrong shape
+        raise DataError(f"{args.summary} is not a demo summary (a block has the wrong shape: {error!r}); give the "
+                        "summary.json of ./vessel demo") from None
     if args.out is None:
         print(page)
     else:

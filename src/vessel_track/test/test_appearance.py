@@ -54,6 +54,11 @@ def test_logistic_fit_separates_white_from_red_and_round_trips(tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(ModelError):
         ap.AppearanceModel.load(tmp_path / "bad.npz")
+    (tmp_path / "empty.npz").write_bytes(b"")  # these two used to escape as EOFError and BadZipFile
+    (tmp_path / "cut.npz").write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    for broken in ("empty.npz", "cut.npz"):
+        with pytest.raises(ModelError, match=f"{broken}: not an appearance model"):
+            ap.AppearanceModel.load(tmp_path / broken)
     with pytest.raises(DataError):
         ap.fit_logistic(np.vstack(features)[:3], np.array(labels)[:3])
 

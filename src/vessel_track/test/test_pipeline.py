@@ -208,6 +208,24 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
     capsys.readouterr()
     assert pl.main(["--data", str(data), "--detections", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+    # Mistakes that used to run as an empty success, writing over the results already in --out
+    kept = {path.name: path.read_bytes() for path in out.iterdir() if path.is_file()}
+    misspelt = tmp_path / "misspelt.yaml"
+    misspelt.write_text("tracker:\n  ros__parameters:\n    gate_pxx: 80.0\n"
+                        "fuser:\n  ros__parameters:\n    distance_model:\n      sigma_widht_px: 3.0\n")
+    only_video_9 = tmp_path / "det9.csv"
+    only_video_9.write_text(lines[0] + "\n" + "9,0,1.0,2.0,3.0,4.0,0.5,8\n")
+    for args, message in (
+            (["--videos", "99", "--detections", str(detections)], "video(s) 99 not in"),
+            (["--videos", "13-14", "--detections", str(only_video_9)], "has no box in videos 13, 14"),
+            (["--videos", "13-14", "--detections", str(detections), "--params", str(misspelt)],
+             "tracker: gate_pxx (did you mean gate_px?); fuser: distance_model.sigma_widht_px (did you mean "
+             "distance_model.sigma_width_px?)")):
+        assert pl.main(["--data", str(data), *args, "--out", str(out), "--no-plots",
+                        "--calib", str(_camera_yaml(tmp_path, camera))]) == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith("error: ") and message in err, err
+        assert {path.name: path.read_bytes() for path in out.iterdir() if path.is_file()} == kept
 
 
 def test_the_coasting_limit_comes_from_the_gps_publisher_block_as_the_nodes_read_it(tmp_path):

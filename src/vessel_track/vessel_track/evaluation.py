@@ -507,6 +507,8 @@ def evaluate(predictions_path: Path, data_dir: Path | None = None, videos: list[
              plots: bool = True, max_gps_gap_s: float = 3.0, match_tolerance_s: float = 0.5) -> dict:
     """Score a predictions CSV; write summary/scores/plots under ``out`` when given. Returns the summary."""
     dataset = open_dataset(data_dir)
+    if videos is not None:
+        videos = dataset.check_videos(videos)
     predictions = read_predictions(predictions_path)
     gps_track = dataset.gps_track()
     if len(gps_track) == 0:

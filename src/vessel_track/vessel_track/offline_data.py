@@ -18,7 +18,7 @@ from vessel_calib.dataset import Dataset
 from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, repo_root
-from vessel_detect.detections_csv import read_detections_csv
+from vessel_detect.detections_csv import read_detections_csv, require_rows_for
 
 
 def open_dataset(data_dir: Path | None):
@@ -99,11 +99,12 @@ def csv_detections(path: Path, dataset, videos) -> list[DetectionFrame]:
     """Detector output CSV -> frames; every frames.csv frame of ``videos`` is a frame (empty if no rows).
 
     A row for a frame not in frames.csv is timed by linear interpolation of frame numbers within its video.
-    Rows with non-numeric values raise DataError naming the row.
+    Rows with non-numeric or non-finite values, and a file with no box in ``videos``, raise DataError.
     """
     path = Path(path)
     grouped = read_detections_csv(path, "write one with `./vessel detect run ... --out FILE.csv` or use "
                                         "--detections labels")
+    require_rows_for(grouped, videos, path)
     wanted = None if videos is None else set(videos)
     rows = {key: np.column_stack([boxes, scores]) for key, (boxes, scores) in grouped.items()
             if wanted is None or key[0] in wanted}

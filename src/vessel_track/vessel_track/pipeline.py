@@ -497,6 +497,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+CHECKED_NODES = ("tracker", "fuser", "gps_publisher")
+"""The nodes whose blocks of ``--params`` the pipeline reads, and checks as the nodes would."""
+NODES_WITH_CALIBRATION = ("fuser", "gps_publisher")
+"""They also take the ``camera.*`` calibration (``declare_camera_model``), which their part files leave out and
+the calibration tool checks."""
+
+
+def unknown_node_parameters(params_path: Path, parts_dir: Path | None = None) -> list[str]:
+    """``node: name (did you mean ...?)`` for each name a checked node's own block gives that the node lacks.
+
+    The nodes refuse such a file; the pipeline ran with the default instead, so a misspelt setting went unnoticed.
+    A node declares the names of its part file (``config/parts/NODE.yaml``, every parameter with its default);
+    ``/**`` is shared by every node and not checked. Empty when the part files are not there.
+    """
+    import difflib
+
+    from vessel_calib.params import read_params_yaml
+    from vessel_common.parameter_names import flatten
+    from vessel_common.paths import repo_root
+
+    parts_dir = parts_dir or repo_root() / "config" / "parts"
+    blocks = read_params_yaml(params_path)
+    problems = []
+    for node in CHECKED_NODES:
+        part = parts_dir / f"{node}.yaml"
+        own = {**blocks.get(node, {}), **blocks.get(f"/{node}", {})}
+        if not own or not part.is_file():
+            continue
+        declared = set(flatten(read_params_yaml(part).get(node, {}))) | {"use_sim_time"}
+        given = set(flatten(own))
+        if node in NODES_WITH_CALIBRATION:
+            given = {name for name in given if not name.startswith("camera.")}
+        for name in sorted(given - declared):
+            close = difflib.get_close_matches(name, sorted(declared), n=1)
+            problems.append(f"{node}: {name}" + (f" (did you mean {close[0]}?)" if close else ""))
+    return problems
+
+
 def max_coast_of_params(params_path: Path | None) -> float:
     """The GPS publisher's ``max_coast_s`` of a parameter YAML (the node's default where the file has none)."""
     default = GPS_PUBLISHER_PARAMETERS["max_coast_s"][0]
@@ -534,9 +572,15 @@ def main(argv: list[str] | None = None) -> int:
     """Command line entry point."""
     args = build_parser().parse_args(argv)
     dataset = open_dataset(args.data)
-    videos = parse_videos(args.videos)
+    videos = dataset.check_videos(parse_videos(args.videos))
+    if args.leave_one_out:
+        dataset.check_videos(parse_videos(args.leave_one_out))
     camera, camera_source = load_camera(args.calib, dataset)
     params_path = args.params if args.params is not None else default_params_path()
+    unknown = unknown_node_parameters(params_path) if params_path is not None else []
+    if unknown:
+        raise DataError(f"{params_path} gives parameters no node declares: {'; '.join(unknown)}; fix the file "
+                        "(config/parts/NODE.yaml lists each node's parameters)")
     frames, settings = _frames_and_settings(args, dataset, videos, camera, camera_source, params_path)
     if args.max_coast is None:
         max_coast_s = max_coast_of_params(params_path)
