@@ -234,6 +234,11 @@ class Dataset:
         """Video numbers present in frames.csv."""
         return sorted({f.video for f in self.frames()})
 
+    def default_videos(self) -> list[int]:
+        """The validation videos 13-17 this dataset has; all of its videos when it has none of them."""
+        available = self.videos()
+        return [v for v in VALIDATION_VIDEOS if v in available] or available
+
     def check_videos(self, videos) -> list[int]:
         """``videos`` (None: all), when every one is in frames.csv; else DataError naming those that are not.
 

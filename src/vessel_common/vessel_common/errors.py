@@ -22,10 +22,11 @@ class ModelError(VesselError):
 
 
 def file_system_problem(error: OSError) -> str | None:
-    """One line naming the path a file-system call failed on and what to do; None when no path is involved.
+    """One line naming the path a file-system call failed on and why; None when no path is involved.
 
-    Tools print this instead of a traceback when an output folder lies under a file, a folder is not writable,
-    or a disk is full; an ``OSError`` without a path (a socket, a signal) is a bug and keeps its traceback.
+    Tools print this instead of a traceback when an output folder lies under a file, a file cannot be read, a
+    folder is not writable, or a disk is full; an ``OSError`` without a path (a socket, a signal) keeps its
+    traceback.
     """
     if error.filename is None:
         return None
@@ -34,11 +35,14 @@ def file_system_problem(error: OSError) -> str | None:
     paths = f"{error.filename}" + (f" -> {error.filename2}" if error.filename2 is not None else "")
     if isinstance(error, FileExistsError | NotADirectoryError):
         reason = "a file stands where a folder is needed"
+    elif isinstance(error, IsADirectoryError):
+        reason = "a folder stands where a file is needed"
+    elif isinstance(error, FileNotFoundError):
+        reason = "not found"
     elif isinstance(error, PermissionError):
         reason = "no permission"
     elif error.errno == errno.ENOSPC:
         reason = "the disk is full"
     else:
         reason = error.strerror or type(error).__name__
-    return (f"{reason} ({paths}): every folder on an output path must be a folder you may write to, on a disk "
-            "with room; fix the path or give another")
+    return f"{reason}: {paths}; check that path (and its permissions), or give another"

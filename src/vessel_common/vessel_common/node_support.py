@@ -32,7 +32,7 @@ from rclpy.qos import (
 
 from vessel_common.errors import DataError, VesselError, file_system_problem
 from vessel_common.imports import import_serialized
-from vessel_common.parameter_names import flatten
+from vessel_common.parameter_names import flatten, is_rcl_parameter
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
@@ -203,7 +203,7 @@ def unknown_command_line_parameters(node: Node, args: Sequence[str]) -> list[str
 
 def _undeclared(node: Node, names) -> list[str]:
     """The ``names`` the node does not declare (``qos_overrides.*`` are rcl's, read when a publisher is made)."""
-    return [name for name in names if not node.has_parameter(name) and not name.startswith("qos_overrides.")]
+    return [name for name in names if not node.has_parameter(name) and not is_rcl_parameter(name)]
 
 
 def params_file_parameters(args: Sequence[str], node_fqn: str) -> dict[str, str]:
@@ -538,8 +538,9 @@ def run_node(
     ``preload`` names modules the node needs only once messages arrive; they are imported in the background
     once the node exists, while it is being discovered (see ``vessel_track.deferred_imports``).
 
-    Returns the process exit status: 0 after SIGINT or a node that finished its work, 2 when the node could
-    not start because of a ``VesselError`` (printed as one ``error:`` line naming the problem and the fix).
+    Returns the process exit status: 0 after SIGINT or a node that finished its work, 2 when a ``VesselError``
+    or a file-system error on a path stopped it, at start as a rule (printed as one ``error:`` line naming the
+    problem and the fix).
     """
     if wants_help(args if args is not None else sys.argv):
         try:

@@ -8,6 +8,16 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+RCL_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+"""Parameters every rclpy node declares by itself."""
+RCL_PREFIXES = ("qos_overrides.",)
+"""Parameters rcl reads when a publisher or subscription is made; no node declares them."""
+
+
+def is_rcl_parameter(name: str) -> bool:
+    """Whether ``name`` is a parameter of rclpy or rcl, valid in any node's block without the node declaring it."""
+    return name in RCL_PARAMETERS or name.startswith(RCL_PREFIXES)
+
 
 def flatten(params: Mapping[str, Any], prefix: str = "") -> dict:
     """Nested mapping -> ``{"a.b": value}``, as ROS names parameters (``camera: {H: ...}`` -> ``camera.H``)."""

@@ -62,15 +62,17 @@ def test_a_non_finite_box_or_score_is_refused_by_row(tmp_path):
     """NaN and inf parse as floats; they used to pass into the tracker unnoticed while "x" was refused."""
     for name, cells in (("nan_box", ["13", "1", "nan", "2", "3", "4", "0.5", "8", ""]),
                         ("inf_score", ["13", "1", "1", "2", "3", "4", "inf", "8", ""]),
-                        ("nan_p_target", ["13", "1", "1", "2", "3", "4", "0.5", "0", "nan"])):
+                        ("nan_p_target", ["13", "1", "1", "2", "3", "4", "0.5", "0", "nan"]),
+                        ("nan_score_under_p_target", ["13", "1", "1", "2", "3", "4", "nan", "0", "0.7"])):
         path = _write(tmp_path / f"{name}.csv", [csv_row(13, 0, [1, 2, 3, 4], 0.5), cells])
-        with pytest.raises(DataError, match=rf"{name}.csv, row 3: .* must be finite"):
-            read_detections_csv(path)
+        for confidence in ("p_target", "score"):
+            with pytest.raises(DataError, match=rf"{name}.csv, row 3: .* must be finite"):
+                read_detections_csv(path, confidence=confidence)
     empty_target = _write(tmp_path / "empty_target.csv", [["13", "1", "1", "2", "3", "4", "0.5", "0", ""]])
     assert read_detections_csv(empty_target)[(13, 1)][1].tolist() == [0.5]  # an empty p_target: the score
 
 
-def test_a_file_without_a_box_in_the_videos_asked_for_is_refused(tmp_path):
+def test_a_file_without_a_box_in_the_videos_asked_for_is_refused(tmp_path, capsys):
     from vessel_detect.detections_csv import require_rows_for
 
     path = _write(tmp_path / "run9.csv", [csv_row(9, 0, [1, 2, 3, 4], 0.5)])
@@ -79,6 +81,7 @@ def test_a_file_without_a_box_in_the_videos_asked_for_is_refused(tmp_path):
     require_rows_for(detections, None, path)
     with pytest.raises(DataError, match=r"run9.csv has no box in videos 13 \(its boxes are in videos 9\)"):
         require_rows_for(detections, [13], path)
-    header = _write(tmp_path / "header.csv", [])
-    with pytest.raises(DataError, match="holds no box at all"):
-        require_rows_for(read_detections_csv(header), None, header)
+    header = _write(tmp_path / "header.csv", [])  # what a detector that found nothing writes: said, not refused
+    require_rows_for(read_detections_csv(header), [13], header)
+    assert "header.csv holds no box: every frame of videos 13 counts as one where the detector found nothing" in \
+        capsys.readouterr().err

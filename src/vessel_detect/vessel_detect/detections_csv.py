@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -53,29 +54,35 @@ def read_detections_csv(path: Path, missing_hint: str = "write one with './vesse
             try:
                 key = (int(row["video"]), int(row["frame"]))
                 values = [float(row[c]) for c in ("x1", "y1", "x2", "y2", "score")]
-                target = (row.get("p_target") or "").strip() if confidence == "p_target" else ""
-                if target:
-                    values[4] = float(target)
+                target_text = (row.get("p_target") or "").strip()
+                target = float(target_text) if target_text else 0.0
             except (TypeError, ValueError):
-                raise DataError(f"{path}, row {line}: video, frame, x1..y2 and score must be numbers, got "
+                raise DataError(f"{path}, row {line}: video, frame, x1..y2, score and p_target must be numbers, got "
                                 f"{row}") from None
-            if not all(math.isfinite(v) for v in values):
+            if not all(math.isfinite(v) for v in (*values, target)):
                 raise DataError(f"{path}, row {line}: x1..y2, score and p_target must be finite numbers (or "
                                 f"p_target empty), got {row}; fix or delete the row")
+            if target_text and confidence == "p_target":
+                values[4] = target
             grouped.setdefault(key, []).append(values)
     return {k: (np.asarray(v)[:, :4], np.asarray(v)[:, 4]) for k, v in grouped.items()}
 
 
 def require_rows_for(detections: dict, videos, path: Path) -> None:
-    """DataError unless ``detections`` (``read_detections_csv``) has a box in one of ``videos`` (None: any).
+    """DataError when ``detections`` (``read_detections_csv``) has boxes, none of them in ``videos`` (None: any).
 
-    A file written for other videos, or an empty one, would otherwise be scored as a detector that found nothing.
+    A file written for other videos would otherwise be scored as a detector that found nothing. A file with no
+    box at all is what a detector that found nothing writes: said on standard error, not refused.
     """
     wanted = None if videos is None else set(videos)
     if any(wanted is None or video in wanted for video, _ in detections):
         return
-    found = sorted({video for video, _ in detections})
-    held = f"its boxes are in videos {', '.join(map(str, found))}" if found else "it holds no box at all"
     which = "any video" if wanted is None else f"videos {', '.join(map(str, sorted(wanted)))}"
-    raise DataError(f"{path} has no box in {which} ({held}): give the detections of these videos "
-                    f"(`./vessel detect run --videos ... --out FILE.csv`) or fix --videos")
+    if not detections:
+        print(f"warning: {path} holds no box: every frame of {which} counts as one where the detector found "
+              "nothing", file=sys.stderr)
+        return
+    found = sorted({video for video, _ in detections})
+    raise DataError(f"{path} has no box in {which} (its boxes are in videos {', '.join(map(str, found))}): give "
+                    "the detections of these videos (`./vessel detect run --videos ... --out FILE.csv`) or fix "
+                    "--videos")

@@ -14,7 +14,7 @@ from typing import Any
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.params import camera_block, node_blocks, read_params_yaml
 from vessel_common.errors import ModelError, VesselError
-from vessel_common.parameter_names import flatten
+from vessel_common.parameter_names import flatten, is_rcl_parameter
 from vessel_common.paths import in_repo
 from vessel_detect.appearance_model import (
     COMBINE_MODES,
@@ -181,7 +181,7 @@ def merge_values(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
     """Defaults overlaid with a parameter block (e.g. the ``detector:`` block of a YAML); unknown keys rejected."""
     values = default_values()
     for key, value in flatten(overrides or {}).items():
-        if key in ("camera", "use_sim_time", "qos_overrides") or str(key).startswith(("camera.", "qos_overrides.")):
+        if key in ("camera", "qos_overrides") or str(key).startswith("camera.") or is_rcl_parameter(str(key)):
             continue
         if key not in _BY_NAME:
             raise VesselError(

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import yaml
 
-from vessel_calib.dataset import TRAIN_VIDEOS, VALIDATION_VIDEOS, Dataset
+from vessel_calib.dataset import TRAIN_VIDEOS, Dataset
 from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
@@ -431,12 +431,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise VesselError("no dataset: pass --data DIR (a folder laid out like ../shared/aitas) or set "
                           "VESSEL_DATA")
     dataset = Dataset(data)
-    available = dataset.videos()
-    videos = parse_videos(args.videos) if args.videos else (
-        [v for v in VALIDATION_VIDEOS if v in available] or available)
-    absent = [v for v in videos if v not in available]
-    if absent:
-        raise VesselError(f"video(s) {absent} are not in {data} (it has {available})")
+    videos = dataset.check_videos(parse_videos(args.videos)) if args.videos else dataset.default_videos()
     saved = None
     if args.detections not in ("detector", "labels"):  # read first: a bad file fails before any work
         from vessel_track.offline_data import csv_detections

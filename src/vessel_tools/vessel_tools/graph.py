@@ -485,7 +485,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
         return 0 if all(code == 0 for name, code in statuses.items() if not name.endswith("(standby)")) else 1
-    except (VesselError, KeyboardInterrupt):
+    except (VesselError, KeyboardInterrupt, OSError):
         if runner is not None:  # never leave started nodes behind
             runner.stop()
         raise

@@ -69,6 +69,24 @@ def _commit() -> str:
     return done.stdout.strip() or "unknown"
 
 
+def shape_problem(summary: dict) -> str | None:
+    """What in ``summary`` is not laid out as ``./vessel demo`` writes it, or None: what ``render`` reads."""
+    for name in ("online", "offline", "online_covariance"):
+        scores = summary.get(name)
+        if scores is None:
+            continue
+        if not isinstance(scores, dict):
+            return f"'{name}' is not a block"
+        for group in ("per_video", "splits"):
+            blocks = scores.get(group, {})
+            if not isinstance(blocks, dict) or not all(isinstance(b, dict) for b in blocks.values()):
+                return f"'{name}.{group}' is not a block of blocks"
+    runs = summary.get("runs") or []
+    if not isinstance(runs, list) or not all(isinstance(run, dict) and "video" in run for run in runs):
+        return "'runs' is not a list of runs"
+    return None
+
+
 def render(summary: dict, source: Path, title: str, command: str) -> str:
     """The page for one demo summary."""
     when = datetime.datetime.fromtimestamp(source.stat().st_mtime, tz=datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -117,11 +135,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     online = summary.get("online") if isinstance(summary, dict) else None
     if not isinstance(online, dict) or not (online.get("splits") or online.get("per_video")):
         raise DataError(f"{args.summary} has no 'online' scores: give the summary.json of ./vessel demo")
-    try:
-        page = render(summary, args.summary, args.title, args.command)
-    except (AttributeError, KeyError, TypeError, ValueError) as error:  # a block of the wrong shape
-        raise DataError(f"{args.summary} is not a demo summary (a block has the wrong shape: {error!r}); give the "
-                        "summary.json of ./vessel demo") from None
+    wrong = shape_problem(summary)
+    if wrong:
+        raise DataError(f"{args.summary} is not a demo summary ({wrong}); give the summary.json of ./vessel demo")
+    page = render(summary, args.summary, args.title, args.command)
     if args.out is None:
         print(page)
     else:

@@ -207,11 +207,12 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
     assert published[("12.0", "--max-coast", "2")] == published[("2.0",)], published
     capsys.readouterr()
     assert pl.main(["--data", str(data), "--detections", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
-    assert capsys.readouterr().err.startswith("error: ")
+    assert "missing.csv not found" in capsys.readouterr().err  # no --videos: the 13-17 the data has (13, 14)
     # Mistakes that used to run as an empty success, writing over the results already in --out
     kept = {path.name: path.read_bytes() for path in out.iterdir() if path.is_file()}
     misspelt = tmp_path / "misspelt.yaml"
-    misspelt.write_text("tracker:\n  ros__parameters:\n    gate_pxx: 80.0\n"
+    misspelt.write_text("tracker:\n  ros__parameters:\n    gate_pxx: 80.0\n    start_type_description_service: true\n"
+                        "    qos_overrides:\n      /vessel/detections:\n        subscription:\n          depth: 5\n"
                         "fuser:\n  ros__parameters:\n    distance_model:\n      sigma_widht_px: 3.0\n")
     only_video_9 = tmp_path / "det9.csv"
     only_video_9.write_text(lines[0] + "\n" + "9,0,1.0,2.0,3.0,4.0,0.5,8\n")
@@ -333,3 +334,20 @@ def test_the_offline_pass_bridges_only_gaps_up_to_max_gap_s():
     assert all(short_gaps[t].lat == every_gap[t].lat and short_gaps[t].lon == every_gap[t].lon for t in short_gaps)
     with pytest.raises(DataError, match="max_gap_s must be a finite number of seconds >= 0"):
         dataclasses.replace(settings.offline, max_gap_s=-1.0)
+
+
+def test_the_pipeline_names_the_settings_a_node_would_refuse_and_only_those(tmp_path):
+    params = tmp_path / "params.yaml"
+    params.write_text(
+        "/**:\n  ros__parameters:\n    anything_shared: 1\n"
+        "tracker:\n  ros__parameters:\n    gate_px: 80.0\n    use_sim_time: true\n"
+        "    start_type_description_service: false\n    qos_overrides:\n      /x:\n        publisher:\n"
+        "          depth: 3\n"
+        "fuser:\n  ros__parameters:\n    camera:\n      H: [1.0]\n      horizon_y_center: 400.0\n"
+        "    fusion:\n      anchor: 0.5\n      anchr_offset: 0.1\n"
+        "gps_publisher:\n  ros__parameters:\n    max_coast_s: 2.0\n    covariance_mod: sum\n")
+    assert pl.unknown_node_parameters(params) == [
+        "fuser: fusion.anchr_offset (did you mean fusion.anchor_offset?)",
+        "gps_publisher: covariance_mod (did you mean covariance_mode?)"]
+    with pytest.raises(DataError, match="fusion.anchor is no longer a fuser parameter"):  # its own message
+        pl.load_fuser_settings(params)

@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="./vessel pipeline", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default $VESSEL_DATA or "
                                                                 "../shared/aitas)")
-    parser.add_argument("--videos", default="13-17", help="videos to run (default 13-17)")
+    parser.add_argument("--videos", default=None, help="videos to run (default 13-17, those the data has; else all)")
     parser.add_argument("--detections", default="labels", help="'labels' or a detector CSV "
                                                                "(video,frame,x1,y1,x2,y2,score,class_id)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
@@ -499,6 +499,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 CHECKED_NODES = ("tracker", "fuser", "gps_publisher")
 """The nodes whose blocks of ``--params`` the pipeline reads, and checks as the nodes would."""
+SPECIALLY_REPORTED = frozenset({"fusion.anchor"})
+"""Names the settings loaders refuse with their own message (``FUSION_ANCHOR_MOVED``: where the setting went)."""
 NODES_WITH_CALIBRATION = ("fuser", "gps_publisher")
 """They also take the ``camera.*`` calibration (``declare_camera_model``), which their part files leave out and
 the calibration tool checks."""
@@ -514,7 +516,7 @@ def unknown_node_parameters(params_path: Path, parts_dir: Path | None = None) ->
     import difflib
 
     from vessel_calib.params import read_params_yaml
-    from vessel_common.parameter_names import flatten
+    from vessel_common.parameter_names import flatten, is_rcl_parameter
     from vessel_common.paths import repo_root
 
     parts_dir = parts_dir or repo_root() / "config" / "parts"
@@ -525,8 +527,8 @@ def unknown_node_parameters(params_path: Path, parts_dir: Path | None = None) ->
         own = {**blocks.get(node, {}), **blocks.get(f"/{node}", {})}
         if not own or not part.is_file():
             continue
-        declared = set(flatten(read_params_yaml(part).get(node, {}))) | {"use_sim_time"}
-        given = set(flatten(own))
+        declared = set(flatten(read_params_yaml(part).get(node, {})))
+        given = {name for name in flatten(own) if not is_rcl_parameter(name) and name not in SPECIALLY_REPORTED}
         if node in NODES_WITH_CALIBRATION:
             given = {name for name in given if not name.startswith("camera.")}
         for name in sorted(given - declared):
@@ -572,7 +574,7 @@ def main(argv: list[str] | None = None) -> int:
     """Command line entry point."""
     args = build_parser().parse_args(argv)
     dataset = open_dataset(args.data)
-    videos = dataset.check_videos(parse_videos(args.videos))
+    videos = dataset.check_videos(parse_videos(args.videos)) if args.videos else dataset.default_videos()
     if args.leave_one_out:
         dataset.check_videos(parse_videos(args.leave_one_out))
     camera, camera_source = load_camera(args.calib, dataset)
