@@ -156,6 +156,22 @@ def test_update_block_keeps_comments_order_and_every_other_block(tmp_path):
                      "      b: 20.5", "      source: 'labels 7-12, x'  # where it comes from"]
 
 
+def test_update_block_leaves_the_lines_of_unchanged_values_as_they_were(tmp_path):
+    """A refit that gives the same values used to realign their comments and requote strings: a diff of nothing."""
+    path = tmp_path / "graph.yaml"
+    original = ("detector:\n  ros__parameters:\n    size_prior:\n"
+                "      dimension: width            # the box size compared\n"
+                "      model: [1.5, 2.0]   # a, b\n"
+                "      source: labels 7-12, camera x.yaml  # where it comes from\n")
+    path.write_text(original)
+    update_params_block(path, "detector", "size_prior",
+                        {"dimension": "width", "model": [1.5, 2.0], "source": "labels 7-12, camera x.yaml"})
+    assert path.read_text() == original
+    update_params_block(path, "detector", "size_prior",
+                        {"dimension": "height", "model": [1.5, 2.0], "source": "labels 7-12, camera x.yaml"})
+    assert path.read_text() == original.replace("dimension: width ", "dimension: height")  # its comment's column
+
+
 def test_update_block_adds_missing_blocks_and_files(tmp_path):
     path = tmp_path / "graph.yaml"
     path.write_text(DOCUMENTED)

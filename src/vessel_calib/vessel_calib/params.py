@@ -232,13 +232,28 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
                 return None
             top.setdefault(parsed[1], i)
 
-    def key_lines(indent: int, old_comments: Mapping[str, str]) -> list[str]:
-        """The block's lines: keys already in the file first, in their order and with their comments."""
+    def key_lines(indent: int, old_comments: Mapping[str, str], old_lines: Mapping[str, str] | None = None
+                  ) -> list[str]:
+        """The block's lines: keys already in the file first, in their order and with their comments.
+
+        A key whose value does not change keeps its line as it was; a changed one keeps its comment's column.
+        """
+        old_lines = old_lines or {}
         order = [key for key in old_comments if key in values] + [key for key in values if key not in old_comments]
         out = []
         for key in order:
+            text = yaml_value_text(values[key])
+            old_line = old_lines.get(key)
+            if old_line is not None and _same_value(old_line, text):
+                out.append(old_line)
+                continue
             comment = old_comments.get(key) or comments.get(key, "")
-            out.append(f"{' ' * indent}{key}: {yaml_value_text(values[key])}" + (f"  # {comment}" if comment else ""))
+            line = f"{' ' * indent}{key}: {text}"
+            if comment:
+                column = _comment_column(old_line) if old_line is not None else None
+                line = line.ljust(column) + f"# {comment}" if column and column >= len(line) + 2 else \
+                    f"{line}  # {comment}"
+            out.append(line)
         return out
 
     if node not in top:
@@ -267,6 +282,7 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
     head, comment = _split_comment(_key_line(lines[block_at])[2])
     old_comments: dict[str, str] = {}
     key_indent = block_indent + 2
+    old_lines: dict[str, str] = {}
     if head:  # flow style on one line: rewrite it as a block
         header = f"{' ' * block_indent}{_key_line(lines[block_at])[1]}:" + (f"  # {comment}" if comment else "")
     else:
@@ -276,7 +292,28 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
             key_indent = _indent(lines[min(old.values())])
         for key, i in sorted(old.items(), key=lambda item: item[1]):
             old_comments[key] = _split_comment(_key_line(lines[i])[2])[1]
-    return lines[:block_at] + [header] + key_lines(key_indent, old_comments) + lines[block_end:]
+            old_lines[key] = lines[i]
+    return lines[:block_at] + [header] + key_lines(key_indent, old_comments, old_lines) + lines[block_end:]
+
+
+def _same_value(line: str, value_text: str) -> bool:
+    """Whether the ``key: value`` ``line`` already holds the value ``value_text`` stands for."""
+    try:
+        return yaml.safe_load(_split_comment(_key_line(line)[2])[0] or "null") == yaml.safe_load(value_text)
+    except yaml.YAMLError:
+        return False
+
+
+def _comment_column(line: str) -> int | None:
+    """Where the comment of a ``key: value    # comment`` line starts when it is aligned to a column, or None.
+
+    More than two spaces before the ``#`` mark an aligned comment; two are the plain layout, kept as such.
+    """
+    comment = _split_comment(_key_line(line)[2])[1]
+    if not comment:
+        return None
+    column = line.rfind("#", 0, len(line) - len(comment))
+    return column if line[column - 3:column] == "   " else None
 
 
 def update_params_block(path, node: str, block: str, values: Mapping[str, Any],
