@@ -321,3 +321,26 @@ def test_a_water_level_file_is_checked_at_start(tmp_path, problem, ros_env, star
     assert done.returncode == 2, (done.stdout, done.stderr)
     assert "Traceback" not in done.stderr
     assert ("does not exist" if problem == "missing_file" else "no camera.water_level_m") in done.stderr
+
+
+def test_boats_at_the_horizon_are_counted_without_turning_the_status_to_warn():
+    """Boxes above the horizon come every frame on the challenge camera: counted, and the status stays OK.
+
+    They used to be problems, which kept the fuser's /diagnostics at WARN for good and hid the warnings that matter.
+    """
+    from types import SimpleNamespace
+
+    from vessel_msgs.msg import VesselTrackArray
+    from vessel_track.fuser_node import FuserNode
+
+    problems, counts = [], {}
+    health = SimpleNamespace(problem=lambda kind, message: problems.append(kind),
+                             count=lambda kind, amount=1: counts.update({kind: counts.get(kind, 0) + amount}),
+                             set_value=lambda key, value: None)
+    node = SimpleNamespace(health=health, _reported_counts={},
+                           core=SimpleNamespace(counts={"above_horizon": 9, "beyond_max_range": 2, "gap": 1}))
+    FuserNode._report(node, VesselTrackArray())
+    node.core.counts["above_horizon"] = 12
+    FuserNode._report(node, VesselTrackArray())
+    assert counts == {"frames": 2, "above_horizon": 12, "beyond_max_range": 2}
+    assert problems == ["gap"]  # bad input and set-up still warn, once per occurrence

@@ -57,6 +57,12 @@ PROBLEM_MESSAGES = {
 }
 
 
+OPERATING_EVENTS = frozenset({"above_horizon", "beyond_max_range", "shape_jump", "height_drop", "outlier_rejected",
+                              "identity_changed"})
+"""Kinds of ``PROBLEM_MESSAGES`` that a healthy graph meets every minute (a boat at the horizon, a box of spray):
+counted on ``/diagnostics`` but no warning, so that the node's status says WARN only for bad input or set-up."""
+
+
 def screen_track_from_msg(msg: VesselTrack, stamp: float, source: str = "measured") -> ScreenTrack:
     """The fuser core's view of a ``VesselTrack`` from the tracker (as ``pipeline.screen_track_of``).
 
@@ -166,8 +172,11 @@ class FuserNode(Node):
         for kind, count in self.core.counts.items():
             new = count - self._reported_counts.get(kind, 0)
             if new > 0:
-                for _ in range(new):
-                    self.health.problem(kind, PROBLEM_MESSAGES.get(kind, kind))
+                if kind in OPERATING_EVENTS:
+                    self.health.count(kind, new)
+                else:
+                    for _ in range(new):
+                        self.health.problem(kind, PROBLEM_MESSAGES.get(kind, kind))
                 self._reported_counts[kind] = count
         target = next((t for t in out.tracks if t.is_target), None)
         self.health.set_value("tracks", len(out.tracks))
