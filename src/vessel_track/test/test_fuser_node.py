@@ -344,3 +344,20 @@ def test_boats_at_the_horizon_are_counted_without_turning_the_status_to_warn():
     FuserNode._report(node, VesselTrackArray())
     assert counts == {"frames": 2, "above_horizon": 12, "beyond_max_range": 2}
     assert problems == ["gap"]  # bad input and set-up still warn, once per occurrence
+
+
+def test_published_covariances_are_exactly_symmetric():
+    """A filter's covariance is symmetric only to rounding; a strict check by a consumer would refuse it."""
+    from vessel_msgs.msg import VesselTrack
+    from vessel_track.fuser_node import fill_world_fields
+    from vessel_track.fusion import ScreenTrack, WorldTrack
+
+    screen = ScreenTrack("T1", 1, np.array([600.0, 450.0]), np.array([30.0, 12.0]), 0.9, True)
+    world = WorldTrack(screen, 1601496000.0, has_world=True, position=np.array([100.0, 50.0]),
+                       velocity=np.array([1.0, 0.0]),
+                       position_covariance=np.array([[40.0, 3.0 + 2e-9], [3.0, 20.0]]),
+                       velocity_covariance=np.array([[0.5, 0.1], [0.1 - 1e-12, 0.4]]))
+    msg = fill_world_fields(VesselTrack(), world)
+    for flat in (msg.position_covariance, msg.velocity_covariance):
+        assert flat[1] == flat[2]
+    assert msg.position_covariance[0] == 40.0 and msg.position_covariance[3] == 20.0

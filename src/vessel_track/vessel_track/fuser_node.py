@@ -95,6 +95,12 @@ def _finite_or_nan(values) -> list[float]:
     return [float(v) if math.isfinite(v) else math.nan for v in np.asarray(values, dtype=float).ravel()]
 
 
+def _symmetric(matrix) -> np.ndarray:
+    """``matrix`` made exactly symmetric: a filter's covariance is only to rounding, and consumers may check it."""
+    matrix = np.asarray(matrix, dtype=float)
+    return (matrix + matrix.T) / 2.0
+
+
 def fill_world_fields(msg: VesselTrack, world: WorldTrack) -> VesselTrack:
     """Write the fuser's results into ``msg`` (a copy of the input track); NaN and has_world=False if none."""
     msg.is_target = bool(world.is_target)
@@ -104,8 +110,8 @@ def fill_world_fields(msg: VesselTrack, world: WorldTrack) -> VesselTrack:
                                                       0.0 if world.has_world else math.nan)
     msg.velocity.x, msg.velocity.y, msg.velocity.z = (float(world.velocity[0]), float(world.velocity[1]),
                                                       0.0 if world.has_world else math.nan)
-    msg.position_covariance = _finite_or_nan(world.position_covariance)
-    msg.velocity_covariance = _finite_or_nan(world.velocity_covariance)
+    msg.position_covariance = _finite_or_nan(_symmetric(world.position_covariance))
+    msg.velocity_covariance = _finite_or_nan(_symmetric(world.velocity_covariance))
     msg.latitude = float(world.latitude)
     msg.longitude = float(world.longitude)
     msg.distance_m = float(world.distance_m)
