@@ -32,7 +32,7 @@ from rclpy.qos import (
 
 from vessel_common.errors import DataError, VesselError, file_system_problem
 from vessel_common.imports import import_serialized
-from vessel_common.parameter_names import flatten, is_rcl_parameter
+from vessel_common.parameter_names import flatten, is_rcl_parameter, with_closest
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
 
 SENSOR_DATA_QOS = qos_profile_sensor_data
@@ -254,14 +254,7 @@ def unknown_params_file_parameters(node: Node, args: Sequence[str]) -> dict[str,
 
 def _misspelt(node: Node, names: Sequence[str]) -> str:
     """``name (did you mean close?)`` for each name, against the node's declared parameters."""
-    import difflib
-
-    declared = sorted(node._parameters)
-    hints = []
-    for name in names:
-        close = difflib.get_close_matches(name, declared, n=1)
-        hints.append(f"{name}" + (f" (did you mean {close[0]}?)" if close else ""))
-    return ", ".join(hints)
+    return ", ".join(with_closest(name, node._parameters) for name in names)
 
 
 def steady_timer(node: Node, period_s: float, callback: Callable[[], None]):

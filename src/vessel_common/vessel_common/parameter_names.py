@@ -19,6 +19,14 @@ def is_rcl_parameter(name: str) -> bool:
     return name in RCL_PARAMETERS or name.startswith(RCL_PREFIXES)
 
 
+def with_closest(name: str, declared) -> str:
+    """``name (did you mean close?)``, the declared name closest to a misspelt one, or ``name`` alone."""
+    import difflib
+
+    close = difflib.get_close_matches(name, sorted(declared), n=1)
+    return f"{name}" + (f" (did you mean {close[0]}?)" if close else "")
+
+
 def flatten(params: Mapping[str, Any], prefix: str = "") -> dict:
     """Nested mapping -> ``{"a.b": value}``, as ROS names parameters (``camera: {H: ...}`` -> ``camera.H``)."""
     out = {}

@@ -249,14 +249,16 @@ class BagWriter:
     """
 
     def __init__(self, path: str | Path, *, overwrite: bool = False, atomic: bool = True,
-                 flush_every_s: float = 0.0) -> None:
+                 flush_every_s: float = 0.0,
+                 overwrite_hint: str = "pass --overwrite (overwrite=True) to replace it") -> None:
+        """``overwrite_hint``: how the caller's user asks to replace an existing bag (a node's is a parameter)."""
         self.path = Path(path)
         self.overwrite = overwrite
         self.atomic = atomic
         self.flush_every_s = float(flush_every_s)
         self._last_flush = time.monotonic()
         if self.path.exists() and not overwrite:
-            raise DataError(f"{self.path} exists already: pass --overwrite (overwrite=True) to replace it")
+            raise DataError(f"{self.path} exists already: {overwrite_hint}")
         self._store = typestore()
         self._staging: Path | None = None
         self._writer: Writer | None = None
@@ -841,8 +843,6 @@ def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: b
                 f"--out {target} holds the damaged bag {path}: replacing it would delete what is being recovered; "
                 "give a new folder, or leave --out out to recover a bag folder in place"
             )
-        if target.exists() and not overwrite:
-            raise DataError(f"--out {target} exists already: give a new folder, or pass --overwrite to replace it")
     salvage = salvage_mcap(path)
     if out is None:
         if not path.is_dir():
@@ -851,7 +851,8 @@ def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: b
         salvage.file.replace(kept)
         salvage.file = kept
         target = path
-    with BagWriter(target, overwrite=True) as writer:
+    with BagWriter(target, overwrite=out is None or overwrite,
+                   overwrite_hint="give a new folder, or pass --overwrite to replace it") as writer:
         for topic, msgtype in salvage.msgtypes.items():
             writer.add_topic(topic, msgtype)
         for message in salvage.messages:

@@ -121,11 +121,9 @@ class RecorderNode(Node):
         self.health = NodeHealth(self, hardware_id="recorder")
         self.health.count("messages", 0)
         self.health.set_value("output", str(self.output))
-        if self.output.exists() and not self.overwrite:
-            raise DataError(f"{self.output} exists already: give another -p output:=..., or -p overwrite:=true to "
-                            "replace it")
-        self.writer = bag_io.BagWriter(self.output, overwrite=self.overwrite, atomic=False,
-                                       flush_every_s=self.flush_period_s).open()
+        self.writer = bag_io.BagWriter(
+            self.output, overwrite=self.overwrite, atomic=False, flush_every_s=self.flush_period_s,
+            overwrite_hint="give another -p output:=..., or -p overwrite:=true to replace it").open()
         self.finished = False
         self._closed = False
         self._last_progress = time.monotonic()

@@ -513,10 +513,8 @@ def unknown_node_parameters(params_path: Path, parts_dir: Path | None = None) ->
     A node declares the names of its part file (``config/parts/NODE.yaml``, every parameter with its default);
     ``/**`` is shared by every node and not checked. Empty when the part files are not there.
     """
-    import difflib
-
     from vessel_calib.params import read_params_yaml
-    from vessel_common.parameter_names import flatten, is_rcl_parameter
+    from vessel_common.parameter_names import flatten, is_rcl_parameter, with_closest
     from vessel_common.paths import repo_root
 
     parts_dir = parts_dir or repo_root() / "config" / "parts"
@@ -531,9 +529,7 @@ def unknown_node_parameters(params_path: Path, parts_dir: Path | None = None) ->
         given = {name for name in flatten(own) if not is_rcl_parameter(name) and name not in SPECIALLY_REPORTED}
         if node in NODES_WITH_CALIBRATION:
             given = {name for name in given if not name.startswith("camera.")}
-        for name in sorted(given - declared):
-            close = difflib.get_close_matches(name, sorted(declared), n=1)
-            problems.append(f"{node}: {name}" + (f" (did you mean {close[0]}?)" if close else ""))
+        problems += [f"{node}: {with_closest(name, declared)}" for name in sorted(given - declared)]
     return problems
 
 
