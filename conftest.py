@@ -21,6 +21,8 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent
 INSTALL_DIR = REPO_ROOT / "ros2_ws" / "install"
+# The tests' own synthetic cameras, frames and models (test/vessel_fixtures), which no package installs.
+sys.path.insert(0, str(REPO_ROOT / "test"))
 
 
 ROS_FIXTURES = {"ros_env", "ros_context", "start_node"}
@@ -54,8 +56,8 @@ def data_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def dataset(data_dir):
-    """The challenge dataset (``vessel_calib.dataset.Dataset``) of ``data_dir``; skips when absent."""
-    from vessel_calib.dataset import Dataset
+    """The challenge dataset (``vessel_tools.calib.dataset.Dataset``) of ``data_dir``; skips when absent."""
+    from vessel_tools.calib.dataset import Dataset
 
     return Dataset(data_dir)
 

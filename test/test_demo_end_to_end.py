@@ -61,7 +61,7 @@ def test_short_demo_writes_sane_outputs(data_dir, model_path, ros_env, tmp_path)
 @pytest.mark.slow
 def test_demo_replays_a_saved_detector_run_in_step_with_the_camera(data_dir, ros_env, tmp_path):
     """--detections FILE.csv: a `detect run` CSV goes through the graph frame for frame (no model needed)."""
-    from vessel_calib.dataset import Dataset
+    from vessel_tools.calib.dataset import Dataset
 
     frames = Dataset(data_dir).frames([13])[:6]
     saved = tmp_path / "run.csv"
@@ -108,7 +108,8 @@ def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_di
 
 def test_a_recording_whose_recorder_died_is_recovered_and_kept(tmp_path):
     """The demo used to abort with no output at all when the recorder was killed with -9."""
-    from vessel_detect import bag_io, synthetic
+    from vessel_detect import bag_io
+    from vessel_fixtures import detect_synthetic as synthetic
     from vessel_tools.demo import VideoRun, readable_recording
 
     recording = tmp_path / "video_13"

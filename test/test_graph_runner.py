@@ -21,11 +21,11 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
     from vessel_detect.bag_io import BagReader
 
     bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_detect.bag_build", "--data", str(data_dir), "--videos", "14",
+    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "14",
                             "--out", str(bags)], env=ros_env, capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     recording = tmp_path / "recording"
-    run = subprocess.run([sys.executable, "-m", "vessel_tools.graph", "--source", str(bags / "video_14"),
+    run = subprocess.run([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_14"),
                           "--rate", "0", "--exit-at-end", "--record", str(recording), "--log-dir",
                           str(tmp_path / "logs")], env=ros_env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
@@ -56,11 +56,11 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
     from vessel_detect.bag_io import BagReader
 
     bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_detect.bag_build", "--data", str(data_dir), "--videos", "15",
+    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "15",
                             "--out", str(bags)], env=ros_env, capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     logs, recording = tmp_path / "logs", tmp_path / "recording"
-    graph = subprocess.Popen([sys.executable, "-m", "vessel_tools.graph", "--source", str(bags / "video_15"),
+    graph = subprocess.Popen([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_15"),
                               "--rate", "4" if hot_standby else "2", "--exit-at-end", "--respawn", "--record",
                               str(recording), "--log-dir",
                               str(logs)] + (["--hot-standby"] if hot_standby else []),
@@ -111,7 +111,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
 
 
 def test_restarts_back_off():
-    from vessel_track.graph_nodes import MAX_RESTARTS, restart_delay_s
+    from vessel_bringup.graph_nodes import MAX_RESTARTS, restart_delay_s
 
     assert [restart_delay_s(k) for k in range(6)] == [0.0, 0.5, 1.0, 2.0, 4.0, 8.0]
     assert restart_delay_s(20) == 8.0 and MAX_RESTARTS == 5

@@ -44,7 +44,7 @@ def _stand_in_modules(monkeypatch):
 
 def _load_graph_launch(monkeypatch):
     _stand_in_modules(monkeypatch)
-    path = REPO_ROOT / "src/vessel_track/launch/vessel_graph.launch.py"
+    path = REPO_ROOT / "src/vessel_bringup/launch/vessel_graph.launch.py"
     spec = importlib.util.spec_from_file_location("vessel_graph_launch", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -53,7 +53,7 @@ def _load_graph_launch(monkeypatch):
 
 def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(monkeypatch):
     """Stand-ins; test_launch_graph.py runs the real ros2 launch where it is installed."""
-    from vessel_track.graph_nodes import GRAPH_NODES
+    from vessel_bringup.graph_nodes import GRAPH_NODES
 
     module = _load_graph_launch(monkeypatch)
     entities = module.generate_launch_description().args[0]

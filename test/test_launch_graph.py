@@ -1,4 +1,4 @@
-"""``ros2 launch vessel_track vessel_graph.launch.py`` with the real ``ros2`` command line, launch and launch_ros.
+"""``ros2 launch vessel_bringup vessel_graph.launch.py`` with the real ``ros2`` command line, launch and launch_ros.
 
 They are not on PyPI: ``./vessel setup`` builds their jazzy sources (vendored in third_party/ros2) into the
 workspace, so this runs in CI. A workspace built without them (or without a ROS 2 install sourced) skips, saying so.
@@ -31,7 +31,7 @@ def _launch_available() -> str | None:
 @pytest.fixture(scope="module")
 def video_bag(data_dir, tmp_path_factory):
     bags = tmp_path_factory.mktemp("bags")
-    done = subprocess.run([sys.executable, "-m", "vessel_detect.bag_build", "--data", str(data_dir), "--videos", "13",
+    done = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "13",
                            "--out", str(bags)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     return bags / "video_13"
@@ -52,7 +52,7 @@ def test_the_readme_launch_line_publishes_fixes_at_the_rate_given(managed, ros_e
     repo = __import__("pathlib").Path(__file__).resolve().parents[1]
     log = open(tmp_path / "launch.log", "w")
     launch = subprocess.Popen(
-        ["ros2", "launch", "vessel_track", "vessel_graph.launch.py", f"params_file:={repo}/config/aitas.yaml",
+        ["ros2", "launch", "vessel_bringup", "vessel_graph.launch.py", f"params_file:={repo}/config/aitas.yaml",
          f"calib_file:={repo}/config/aitas_camera.yaml", f"source:={video_bag}", "rate:=4.0", f"managed:={managed}"],
         env=ros_env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     probe = rclpy.create_node("launch_probe", context=ros_context)
@@ -79,7 +79,7 @@ def test_a_mistyped_parameter_file_stops_the_launch(ros_env, tmp_path):
     reason = _launch_available()
     if reason:
         pytest.skip(reason)
-    done = subprocess.run(["ros2", "launch", "vessel_track", "vessel_graph.launch.py",
+    done = subprocess.run(["ros2", "launch", "vessel_bringup", "vessel_graph.launch.py",
                            f"params_file:={tmp_path}/aitas_typo.yaml", "calib_file:=config/aitas_camera.yaml"],
                           env=ros_env, capture_output=True, text=True, timeout=60)
     assert done.returncode != 0

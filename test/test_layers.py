@@ -9,12 +9,14 @@ Layers, lowest first (a module may import its own layer and those below):
   selection, smoothing, the runtime halves of the distance and error models;
 - ``ros``: ROS plumbing shared by nodes and tools: node support, parameter declarations, bag I/O, image sources;
 - ``nodes``: the rclpy nodes;
-- ``tools``: offline tools: data-folder loaders, calibration fit, pipeline, evaluation, fitting, training, bags;
-- ``apps``: what runs the graph: demo, benchmarks, graph runner, replay check, the ``vessel`` command line (package
-  ``vessel_tools``).
+- ``bringup``: what starts the graph: the node list of the launch file and the graph runner (package
+  ``vessel_bringup``);
+- ``tools``: offline tools: data-folder loaders, calibration fit, pipeline, evaluation, fitting, training, bags
+  (package ``vessel_tools``);
+- ``apps``: demo, benchmarks, replay check, the ``vessel`` command line (package ``vessel_tools``).
 
-The packages follow the same order (``PACKAGE_DEPENDS``): ``vessel_common`` imports none of the others and nothing
-imports ``vessel_tools``.
+The packages follow the same order (``PACKAGE_DEPENDS``): ``vessel_common`` imports none of the others, the runtime
+packages import neither ``vessel_bringup`` nor ``vessel_tools``, and nothing imports ``vessel_tools``.
 
 Every import counts, inside functions too. A new module must be given a layer here.
 """
@@ -25,42 +27,42 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "vessel_tools")
-LAYERS = ("common", "core", "ros", "nodes", "tools", "apps")
+PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "vessel_bringup", "vessel_tools")
+LAYERS = ("common", "core", "ros", "nodes", "bringup", "tools", "apps")
 ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_interfaces", "rosbags", "mcap")
 
 _BY_LAYER = {
     "common": """vessel_common vessel_common.errors vessel_common.imports vessel_common.paths vessel_common.state_file
                  vessel_common.command_line vessel_common.parameter_names vessel_calib vessel_calib.geodesy
-                 vessel_detect vessel_detect.training
-                 vessel_track vessel_tools""",
+                 vessel_detect vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
                vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
-               vessel_detect.detections_csv
-               vessel_detect.recall vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
+               vessel_detect.detections_csv vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings""",
     "ros": """vessel_common.node_support vessel_calib.camera_parameters vessel_detect.bag_io
-              vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params vessel_track.graph_nodes""",
+              vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params""",
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
                 vessel_track.gps_publisher_node""",
-    "tools": """vessel_calib.dataset vessel_calib.calibration vessel_calib.calibration_plot
-                vessel_calib.gps_association vessel_detect.dataset_detection
-                vessel_detect.detect_cli vessel_detect.frame_boxes vessel_detect.bag_build vessel_detect.synthetic
-                vessel_detect.onnx_synthetic vessel_calib.synthetic vessel_detect.training.augment
-                vessel_detect.training.labels
-                vessel_detect.training.loss vessel_detect.training.model vessel_detect.training.model_card
-                vessel_detect.training.quantize vessel_detect.training.settings vessel_detect.training.train_cli
-                vessel_detect.training.trainer vessel_track.offline_data vessel_track.pipeline
-                vessel_track.evaluation vessel_track.appearance vessel_track.distance_model_fit
-                vessel_track.error_model_fit vessel_track.simulation""",
+    "bringup": """vessel_bringup vessel_bringup.graph_nodes vessel_bringup.graph_watcher vessel_bringup.graph""",
+    "tools": """vessel_tools.calib vessel_tools.calib.dataset vessel_tools.calib.calibration
+                vessel_tools.calib.calibration_plot vessel_tools.calib.gps_association
+                vessel_tools.detect vessel_tools.detect.dataset_detection vessel_tools.detect.detect_cli
+                vessel_tools.detect.frame_boxes vessel_tools.detect.bag_build vessel_tools.detect.recall
+                vessel_tools.detect.training vessel_tools.detect.training.augment vessel_tools.detect.training.labels
+                vessel_tools.detect.training.loss vessel_tools.detect.training.model
+                vessel_tools.detect.training.model_card vessel_tools.detect.training.quantize
+                vessel_tools.detect.training.settings vessel_tools.detect.training.train_cli
+                vessel_tools.detect.training.trainer
+                vessel_tools.track vessel_tools.track.offline_data vessel_tools.track.pipeline
+                vessel_tools.track.evaluation vessel_tools.track.appearance vessel_tools.track.distance_model_fit
+                vessel_tools.track.error_model_fit vessel_tools.track.simulation""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
-               vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart vessel_tools.graph
-               vessel_tools.cli vessel_tools.calibrate vessel_tools.graph_watcher
-               vessel_tools.proc_monitor vessel_tools.results_page""",
+               vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart
+               vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 
@@ -162,9 +164,25 @@ def test_the_checks_catch_a_cycle_and_an_upward_import():
 
 PACKAGE_DEPENDS = {"vessel_common": set(), "vessel_calib": {"vessel_common"},
                    "vessel_detect": {"vessel_common", "vessel_calib"},
-                   "vessel_track": {"vessel_common", "vessel_calib", "vessel_detect"},
-                   "vessel_tools": {"vessel_common", "vessel_calib", "vessel_detect", "vessel_track"}}
-"""Which of the project's packages each one may import: plumbing at the bottom, the apps' package on top."""
+                   "vessel_track": {"vessel_common", "vessel_calib"},
+                   "vessel_bringup": {"vessel_common", "vessel_calib", "vessel_detect", "vessel_track"},
+                   "vessel_tools": {"vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "vessel_bringup"}}
+"""Which of the project's packages each one may import. The runtime a robot installs (messages, common, calib,
+detect, track) is at the bottom, the detector and the tracker are peers joined by topics; bringup starts the graph;
+the offline tools sit on top and nothing imports them."""
+
+RUNTIME_PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track")
+OFFLINE_WORDS = ("training", "fit", "evaluation", "bench", "pipeline", "simulation", "dataset", "demo")
+
+
+def test_the_runtime_imports_no_offline_tool():
+    """A robot installs the runtime packages alone: none of their modules may reach bringup or the offline tools."""
+    wrong = sorted(f"{module} imports {other}" for module, others in _graph().items() for other in others
+                   if module.split(".")[0] in RUNTIME_PACKAGES and other.split(".")[0] not in RUNTIME_PACKAGES)
+    assert not wrong, "\n".join(wrong)
+    named = sorted(module for module in _modules() if module.split(".")[0] in RUNTIME_PACKAGES
+                   and any(word in part for part in module.split(".")[1:] for word in OFFLINE_WORDS))
+    assert not named, f"offline tools inside the runtime packages: {named}; move them to vessel_tools"
 
 
 def test_packages_import_only_the_packages_below_them():

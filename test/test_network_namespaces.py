@@ -58,25 +58,25 @@ def _fixes(recording) -> list[tuple[int, float, float, int]]:
 def test_two_namespaces_publish_the_fixes_of_one_host(namespaces, data_dir, model_path, ros_env, tmp_path):
     env = {k: v for k, v in ros_env.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}  # across the veth: subnet
     bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_detect.bag_build", "--data", str(data_dir), "--videos", "14",
+    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "14",
                             "--out", str(bags)], env=env, capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     bag = str(bags / "video_14")
     one_host = tmp_path / "one_host"
-    single = subprocess.run([sys.executable, "-m", "vessel_tools.graph", "--source", bag, "--rate", "0",
+    single = subprocess.run([sys.executable, "-m", "vessel_bringup.graph", "--source", bag, "--rate", "0",
                              "--exit-at-end", "--record", str(one_host)], env=ros_env, capture_output=True,
                             text=True, timeout=600)
     assert single.returncode == 0, single.stderr[-3000:]
 
     split = tmp_path / "split"
     tracking = subprocess.Popen(
-        ["ip", "netns", "exec", namespaces[1], sys.executable, "-m", "vessel_tools.graph", "--source", bag,
+        ["ip", "netns", "exec", namespaces[1], sys.executable, "-m", "vessel_bringup.graph", "--source", bag,
          "--nodes", "tracker,fuser,gps_publisher", "--record", str(split), "--log-dir", str(tmp_path / "logs_b")],
         env=env, stderr=subprocess.PIPE, text=True)
     try:
         time.sleep(15.0)  # the tracking side is up and discoverable before a frame is sent
         camera_side = subprocess.run(
-            ["ip", "netns", "exec", namespaces[0], sys.executable, "-m", "vessel_tools.graph", "--source", bag,
+            ["ip", "netns", "exec", namespaces[0], sys.executable, "-m", "vessel_bringup.graph", "--source", bag,
              "--rate", "0", "--exit-at-end", "--nodes", "camera,detector", "--log-dir", str(tmp_path / "logs_a")],
             env=env, capture_output=True, text=True, timeout=600)
         assert camera_side.returncode == 0, camera_side.stderr[-3000:]

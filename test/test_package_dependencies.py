@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "vessel_tools")
+PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "vessel_bringup", "vessel_tools")
 ROSDEP_KEY = {
     "numpy": "python3-numpy", "cv2": "python3-opencv", "yaml": "python3-yaml", "scipy": "python3-scipy",
     "matplotlib": "python3-matplotlib", "onnxruntime": "python3-onnxruntime-pip", "mcap": "python3-mcap-pip",

@@ -1,6 +1,4 @@
-"""Install vessel_detect: image sources, bag tools, the camera ingest and detector nodes."""
-from glob import glob
-
+"""Install vessel_detect: image sources, bag I/O, the camera ingest, detector and recorder nodes."""
 from setuptools import find_packages, setup
 
 PACKAGE = "vessel_detect"
@@ -12,7 +10,6 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -26,7 +23,6 @@ setup(
             "camera_managed = vessel_detect.camera_node:main_managed",
             "detector = vessel_detect.detector_node:main",
             "detector_managed = vessel_detect.detector_node:main_managed",
-            "bag_build = vessel_detect.bag_build:main",
             "recorder = vessel_detect.recorder_node:main",
             "replay_detector = vessel_detect.replay_detector_node:main",
         ],

@@ -1,4 +1,6 @@
-"""Install vessel_tools: the demo, the graph runner, the benchmarks and the `vessel` command line."""
+"""Install vessel_tools: the offline tools (calibration fit, training, bags, pipeline, evaluation, demo, benchmarks).
+
+And the one `vessel` command line over them."""
 from setuptools import find_packages, setup
 
 PACKAGE = "vessel_tools"
@@ -15,7 +17,7 @@ setup(
     zip_safe=True,
     maintainer="Vessel tracking maintainers",
     maintainer_email="maintainers@vessel-tracking.invalid",
-    description="The demo, the graph runner, the benchmarks and the vessel command line.",
+    description="Offline tools: calibration fit, training, bag building, pipeline, evaluation, demo, benchmarks.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
@@ -27,6 +29,7 @@ setup(
             "eval = vessel_tools.cli:evaluate",
             "pipeline = vessel_tools.cli:pipeline",
             "fit = vessel_tools.cli:fit",
+            "bag_build = vessel_tools.detect.bag_build:main",
         ],
     },
 )

@@ -1,6 +1,4 @@
-"""Install vessel_track: the tracker, fuser and GPS publisher nodes and the evaluation tools."""
-from glob import glob
-
+"""Install vessel_track: the tracker, fuser and GPS publisher nodes."""
 from setuptools import find_packages, setup
 
 PACKAGE = "vessel_track"
@@ -12,7 +10,6 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -13,7 +13,7 @@ from vessel_calib.params import (
     write_camera_yaml,
     write_params_yaml,
 )
-from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON
 from vessel_common.errors import CalibrationError
 
 PAPER_H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]

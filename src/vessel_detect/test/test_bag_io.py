@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from vessel_common.errors import DataError
-from vessel_detect import bag_io, synthetic
+from vessel_detect import bag_io
+from vessel_fixtures import detect_synthetic as synthetic
 
 
 def test_sec_to_ns_keeps_millisecond_stamps_exact():
@@ -236,7 +237,8 @@ def test_single_mcap_file_and_folder_without_metadata(tmp_path):
 
 _KILLED_WRITER = """
 import os, sys
-from vessel_detect import bag_io, synthetic
+from vessel_detect import bag_io
+from vessel_fixtures import detect_synthetic as synthetic
 store = bag_io.typestore()
 writer = bag_io.BagWriter(sys.argv[1], atomic=False).open()
 writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from vessel_detect import bag_io, synthetic
+from vessel_detect import bag_io
+from vessel_fixtures import detect_synthetic as synthetic
 
 pytestmark = pytest.mark.ros
 

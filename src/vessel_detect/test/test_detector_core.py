@@ -18,7 +18,7 @@ from vessel_detect.detector import (
     letterbox,
 )
 from vessel_detect.detector_params import build_detector, default_values
-from vessel_detect.onnx_synthetic import write_constant_output_model
+from vessel_fixtures.onnx_synthetic import write_constant_output_model
 
 POINTS = grid_point_count((416, 416))
 BOAT = 8
@@ -248,7 +248,7 @@ def test_detect_rejects_non_images(tmp_path):
 def test_real_model_finds_the_vessel_on_a_real_frame_and_not_the_post(model_path, data_dir):
     import cv2
 
-    from vessel_calib.dataset import Dataset
+    from vessel_tools.calib.dataset import Dataset
     from vessel_detect.box_ops import box_iou
 
     dataset = Dataset(data_dir)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from vessel_common.errors import DataError
-from vessel_detect import bag_io, sources, synthetic
+from vessel_detect import bag_io, sources
+from vessel_fixtures import detect_synthetic as synthetic
 from vessel_detect.sources import AuxMessage, Frame
 
 

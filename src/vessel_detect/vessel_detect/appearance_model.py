@@ -38,7 +38,7 @@ DEFAULT_FEATURE_SET = "colour_geometry_context"
 FAR_DEPTH_M = 3000.0
 NEAR_DEPTH_M = 5.0
 #: Chosen on training videos 7-12 (leave-one-video-out models and calibrations, detector output at score 0.05,
-#: the whole online and offline pipeline; `vessel_track.appearance` doc): the probability replaces the detector
+#: the whole online and offline pipeline; `vessel_tools.track.appearance` doc): the probability replaces the detector
 #: score (which is one of the features), detections below 0.5 dropped (they are not the vessel of interest and
 #: only give the tracker boxes to swap identities with). Offline 10.2 m/100 m against 36.0 at 0.3, 28.1 at 0.7
 #: and 48.3 for score x probability at 0.5; online 26.1, 33.3, 31.6 and 25.0.

@@ -4,8 +4,8 @@
 appearance cue); empty where neither gives one. Readers hand it on as the box's confidence where it is given,
 as the tracker node does with the detector's target hypothesis (``confidence_class``), else the score.
 
-``./vessel detect run`` writes it, ``vessel_track.appearance score`` rewrites it with the cue's probabilities,
-and ``vessel_track.pipeline``, ``./vessel demo --detections`` and ``detect eval`` read it. Kept free of OpenCV
+``./vessel detect run`` writes it, ``vessel_tools.track.appearance score`` rewrites it with the cue's probabilities,
+and ``vessel_tools.track.pipeline``, ``./vessel demo --detections`` and ``detect eval`` read it. Kept free of OpenCV
 and onnxruntime so the ROS-free tracking tools can read it cheaply.
 """
 from __future__ import annotations

@@ -127,7 +127,7 @@ DETECTION_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("mask_max_inside", 0.5, "A detection whose box lies more than this share inside a mask is "
               "dropped.", float_range=(0.0, 1.0)),
     ParamSpec("appearance_model", "", "Appearance model of the vessel of interest (.npz from `python -m "
-              "vessel_track.appearance fit`; relative paths from the working directory, then the repository): "
+              "vessel_tools.track.appearance fit`; relative paths from the working directory, then the repository): "
               "scores become its probability of the vessel of interest. '' : off.", read_only=True),
     ParamSpec("appearance_min_probability", DEFAULT_MIN_PROBABILITY, "With appearance_model: boxes whose "
               "probability of being the vessel of interest is below this are dropped.", float_range=(0.0, 1.0),

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vessel_tools import bench, graph_watcher, proc_monitor
+from vessel_tools import bench, proc_monitor
+from vessel_bringup import graph_watcher
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 
 from vessel_tools import bench_live
-from vessel_tools.graph_watcher import ArrivalLog
+from vessel_bringup.graph_watcher import ArrivalLog
 
 
 def test_counters_are_read_from_the_named_node_only():

@@ -9,9 +9,9 @@ import pytest
 import yaml
 
 from vessel_calib import geodesy
-from vessel_calib.calibration import evaluate
+from vessel_tools.calib.calibration import evaluate
 from vessel_calib.params import load_camera_yaml
-from vessel_calib.synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 from vessel_tools import calibrate as calibrate_tool
 
 SRC = ":".join(str(p) for p in sorted(Path(__file__).resolve().parents[2].glob("vessel_*")) if p.is_dir())
@@ -216,7 +216,7 @@ def test_interrupt_writes_nothing(tmp_path, pairs_csv, monkeypatch, capsys):
 
 
 def test_interrupt_while_drawing_the_picture_leaves_nothing(tmp_path, pairs_csv, monkeypatch, capsys):
-    import vessel_calib.calibration_plot as plot_module
+    import vessel_tools.calib.calibration_plot as plot_module
 
     def interrupted(path, *args, **kwargs):
         Path(path).write_bytes(b"half a png")
@@ -264,7 +264,7 @@ def test_water_level_with_a_pairs_csv(tmp_path, capsys):
 
     Without times, or outside the file: a one-line error and no file.
     """
-    from vessel_calib.synthetic import T0, tidal_pairs
+    from vessel_fixtures.calib_synthetic import T0, tidal_pairs
 
     screen, gps, levels = tidal_pairs(40, seed=3)
     stamps = T0 + (0.97 - levels) / 0.35 * 3600  # the times the synthetic tide gave these levels

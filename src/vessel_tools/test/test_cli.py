@@ -37,7 +37,7 @@ def test_the_help_names_every_detect_sub_command():
     """`./vessel help` once left out `detect rank` and `detect quantize`."""
     import argparse
 
-    from vessel_detect.detect_cli import build_parser
+    from vessel_tools.detect.detect_cli import build_parser
 
     choices = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
     assert cli.TOOLS["detect"].usage.split()[0].split("|") == list(choices)
@@ -62,9 +62,9 @@ def test_help_of_a_sub_tool_given_as_an_option_prints_the_options():
     (["bench"], "vessel_tools.bench", []),
     (["bench", "--out", "F.json"], "vessel_tools.bench", ["--out", "F.json"]),
     (["bench", "live", "--minutes", "1"], "vessel_tools.bench_live", ["--minutes", "1"]),
-    (["bag", "info", "B"], "vessel_detect.bag_build", ["--info", "B"]),
+    (["bag", "info", "B"], "vessel_tools.detect.bag_build", ["--info", "B"]),
     (["params", "render", "--out", "D"], "vessel_track.node_params", ["render", "--out", "D"]),
-    (["fit", "error-model", "S.csv"], "vessel_track.error_model_fit", ["S.csv"]),
+    (["fit", "error-model", "S.csv"], "vessel_tools.track.error_model_fit", ["S.csv"]),
     (["demo", "--videos", "13"], "vessel_tools.demo", ["--videos", "13"]),
 ])
 def test_each_command_line_reaches_its_tool_with_its_arguments(argv, module, passed):

@@ -44,17 +44,17 @@ from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.parameter_names import flatten
 from vessel_common.paths import default_data_dir, parse_videos
-from vessel_detect.bag_build import BuildOptions, build_from_dataset
+from vessel_tools.detect.bag_build import BuildOptions, build_from_dataset
 from vessel_detect.bag_io import BagReader
 from vessel_detect.detector_params import ALL_PARAMS, build_detector, merge_values
-from vessel_tools.graph import (
+from vessel_bringup.graph import (
     GRAPH_NODES,
     GraphRunner,
     default_calibration_file,
     default_params_file,
     repo_root,
 )
-from vessel_tools.graph_watcher import (
+from vessel_bringup.graph_watcher import (
     CHAIN,
     DETECTIONS_TOPIC,
     FIX_TOPIC,

@@ -33,7 +33,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vessel_calib.dataset import Dataset
+from vessel_tools.calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, repo_file, repo_root

@@ -39,8 +39,8 @@ from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir
 from vessel_tools.bench import _domain_id, log, machine_info, print_and_save
-from vessel_tools.graph_watcher import GraphWatcher
-from vessel_track.offline_data import open_dataset
+from vessel_bringup.graph_watcher import GraphWatcher
+from vessel_tools.track.offline_data import open_dataset
 
 RESTARTABLE = ("tracker", "fuser", "gps_publisher", "detector")
 FIRST_AFTER = 10
@@ -94,7 +94,7 @@ def _bag(args: argparse.Namespace, work: Path) -> Path:
             raise DataError(f"--source {args.source} does not exist: give a bag folder written by ./vessel bag build")
         return args.source
     data = args.data or default_data_dir()
-    done = subprocess.run([sys.executable, "-m", "vessel_detect.bag_build", "--data", str(data), "--videos",
+    done = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data), "--videos",
                            str(args.video), "--out", str(work / "bags")], capture_output=True, text=True)
     if done.returncode != 0:
         raise DataError(f"could not build the bag of video {args.video}: {done.stderr.strip()[-500:]}")
@@ -107,7 +107,7 @@ def _graph_run(watcher: GraphWatcher, bag: Path, rate: float, log_dir: Path, env
     watcher.fixes.clear()
     run = Run()
     log_dir.mkdir(parents=True, exist_ok=True)
-    command = [sys.executable, "-m", "vessel_tools.graph", "--source", str(bag), "--rate", f"{rate:g}",
+    command = [sys.executable, "-m", "vessel_bringup.graph", "--source", str(bag), "--rate", f"{rate:g}",
                "--exit-at-end", "--respawn", "--log-dir", str(log_dir)] + (["--no-state-files"] if cold else []) + (
                    ["--hot-standby"] if hot_standby else [])
     with open(log_dir / "graph.stderr", "w") as stderr:

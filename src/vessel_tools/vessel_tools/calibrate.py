@@ -8,7 +8,7 @@ ROS graph. Inputs, one of:
   ``--box-anchor`` of the way down (default 0.65, chosen on the training videos; 0.5 is the paper's centre);
   ``--label-passes all`` also averages in the second labelling pass (``primary=0``) of the same frames.
 * ``--data DIR`` without ``screen_labels.csv`` (or ``--from detections``): no labels; the vessel is found among
-  the boats a generic detector finds, as the one its GPS track explains (``vessel_calib.gps_association``);
+  the boats a generic detector finds, as the one its GPS track explains (``vessel_tools.calib.gps_association``);
   ``--from both`` adds such pairs to the labelled ones. ``--video FILE --start-utc T --gps TRACK``: the same from a
   video file and a GPS track.
 * ``--pairs-csv FILE``: columns ``x,y,lat,lon`` (or ``x1,y1,x2,y2`` box corners instead of ``x,y``), or
@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.calibration import (
+from vessel_tools.calib.calibration import (
     DEFAULT_BOX_ANCHOR,
     FEW_PAIRS,
     LOSSES,
@@ -57,8 +57,8 @@ from vessel_calib.calibration import (
     study_draws,
 )
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, box_points
-from vessel_calib.dataset import Dataset
-from vessel_calib.gps_association import SearchOptions, associate_and_calibrate
+from vessel_tools.calib.dataset import Dataset
+from vessel_tools.calib.gps_association import SearchOptions, associate_and_calibrate
 from vessel_calib.gps_track import GpsTrack, parse_time
 from vessel_calib.params import read_params_yaml, write_camera_yaml
 from vessel_common.command_line import command_line_tool
@@ -66,8 +66,8 @@ from vessel_common.errors import CalibrationError, DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos, repo_root
 
 if TYPE_CHECKING:
-    from vessel_calib.calibration import CalibrationResult, FitOptions
-    from vessel_calib.dataset import Dataset
+    from vessel_tools.calib.calibration import CalibrationResult, FitOptions
+    from vessel_tools.calib.dataset import Dataset
 
 # Heavy modules (numpy, scipy, matplotlib) are imported inside the functions, after main() has taken over
 # SIGINT, so Ctrl-C during start-up still ends with "interrupted, nothing written" instead of a traceback.
@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--box-anchor", type=float, default=DEFAULT_BOX_ANCHOR,
                      help="point of a labelled box that stands for the vessel's GPS: its horizontal centre, this "
                           f"share of the way down (0 top, 0.5 centre as in the paper, 1 bottom; default "
-                          f"{DEFAULT_BOX_ANCHOR}, see vessel_calib.calibration.DEFAULT_BOX_ANCHOR). Written to the "
+                          f"{DEFAULT_BOX_ANCHOR}, see vessel_tools.calib.calibration.DEFAULT_BOX_ANCHOR). Written to the "
                           "file as camera.box_anchor, so the fuser reads boxes the same way")
     src.add_argument("--label-passes", choices=("primary", "all"), default="primary",
                      help="data folder: average only primary labels per frame, or all labelling passes")
@@ -515,7 +515,7 @@ def _graph_box_anchor(args, ds, pairs: _Pairs, result, water_level):
                   "folder (--from detections) only; ignored here")
         return result
     from vessel_calib.camera_model import CameraModel
-    from vessel_calib.gps_association import measure_box_anchor
+    from vessel_tools.calib.gps_association import measure_box_anchor
 
     frame_boxes = _frame_boxes_module()
     track = ds.gps_track()
@@ -764,7 +764,7 @@ def _temporary_frame(image) -> Path:
 
 def _frame_boxes_module():
     try:
-        from vessel_detect import frame_boxes
+        from vessel_tools.detect import frame_boxes
     except ImportError as exc:
         raise CalibrationError(f"calibrating without labels needs the vessel_detect package (its detector): {exc}; "
                                "build the workspace (./vessel setup)") from None
@@ -804,7 +804,7 @@ def _commit(result, out: Path, picture: Path | None, header: str, frame, eval_pa
     tmp_picture = None
     try:
         if picture is not None:
-            from vessel_calib.calibration_plot import render_calibration_picture
+            from vessel_tools.calib.calibration_plot import render_calibration_picture
 
             picture.parent.mkdir(parents=True, exist_ok=True)
             tmp_picture = picture.with_name(f".{picture.stem}.partial.png")

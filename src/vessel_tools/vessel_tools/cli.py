@@ -38,22 +38,22 @@ TOOLS: dict[str, Tool | Group] = {
                  "[--data DIR] [--videos LIST] [--out DIR] [--calib FILE] [--detections labels|FILE.csv]"),
     "results": Tool("vessel_tools.results_page", "the results page (docs/results.md) written from a demo's "
                     "summary.json", "out/demo/summary.json --out docs/results.md"),
-    "graph": Tool("vessel_tools.graph", "start the node graph as processes, what vessel_graph.launch.py does",
+    "graph": Tool("vessel_bringup.graph", "start the node graph as processes, what vessel_graph.launch.py does",
                   "[--source BAG|VIDEO|DIR|device:N] [--rate R] [--nodes LIST] [--respawn] [--record BAG]"),
-    "eval": Tool("vessel_track.evaluation", "score predictions like the paper (m per 100 m, median, p80, coverage)",
+    "eval": Tool("vessel_tools.track.evaluation", "score predictions like the paper (m per 100 m, median, p80, coverage)",
                  "PREDICTIONS.csv --data DIR [--videos LIST] [--out DIR]"),
     "calibrate": Tool("vessel_tools.calibrate", "GPS-only camera calibration into a ROS parameter file "
                       "(without hand labels: the vessel is found among detected boats)",
                       "--data DIR --videos 7-12 --out FILE.yaml [--water-level CSV] [--from labels|detections]"),
     "bag": Group({
-        "build": Tool("vessel_detect.bag_build", "rosbag2 MCAP folders (one per video) from a dataset folder or a "
+        "build": Tool("vessel_tools.detect.bag_build", "rosbag2 MCAP folders (one per video) from a dataset folder or a "
                       "video file", "--data DIR [--videos LIST] --out BAGDIR"),
-        "info": Tool("vessel_detect.bag_build", "topics, counts and time span of bags (what `ros2 bag info` shows)",
+        "info": Tool("vessel_tools.detect.bag_build", "topics, counts and time span of bags (what `ros2 bag info` shows)",
                      "BAG...", ("--info",)),
-        "recover": Tool("vessel_detect.bag_build", "make a bag whose recorder died (or that was cut short) "
+        "recover": Tool("vessel_tools.detect.bag_build", "make a bag whose recorder died (or that was cut short) "
                         "readable", "BAG [--out NEW]", ("--recover",)),
     }),
-    "detect": Tool("vessel_detect.detect_cli", "the detector over a dataset folder; its recall; training labels "
+    "detect": Tool("vessel_tools.detect.detect_cli", "the detector over a dataset folder; its recall; training labels "
                    "generated from the GPS; fine-tune the detector on them; rank against the GPS; int8 quantization",
                    "run|recall|rank|export-labels|train|quantize ..."),
     "bench": Group({
@@ -66,24 +66,24 @@ TOOLS: dict[str, Tool | Group] = {
         "restart": Tool("vessel_tools.bench_restart", "kill -9 one node of `graph --respawn`: time to the next "
                         "fix, fixes lost, fixes against an uninterrupted run", "[--nodes LIST] [--compare-cold]"),
     }, default="graph"),
-    "pipeline": Tool("vessel_track.pipeline", "tracker, fuser and target choice without ROS over a detections "
+    "pipeline": Tool("vessel_tools.track.pipeline", "tracker, fuser and target choice without ROS over a detections "
                      "CSV (online or smoothed offline); where the defaults were chosen",
                      "--videos 7-12 --detections FILE.csv|labels --out DIR [--leave-one-out 7-12] [--mode offline]"),
     "fit": Group({
-        "distance-model": Tool("vessel_track.distance_model_fit", "refit the box-size distance model and the cue "
+        "distance-model": Tool("vessel_tools.track.distance_model_fit", "refit the box-size distance model and the cue "
                                "noise into a parameter file (only those values change, and the detector's "
                                "size_prior.model with them; comments stay)",
                                "--videos 7-12 --out FILE.yaml"),
-        "error-model": Tool("vessel_track.error_model_fit", "refit the error model (expected error against "
+        "error-model": Tool("vessel_tools.track.error_model_fit", "refit the error model (expected error against "
                             "distance) from scores.csv files into a parameter file", "SCORES.csv --out FILE.yaml"),
     }),
-    "appearance": Tool("vessel_track.appearance", "the vessel-of-interest appearance cue: fit, score, rank",
+    "appearance": Tool("vessel_tools.track.appearance", "the vessel-of-interest appearance cue: fit, score, rank",
                        "fit|score|rank ..."),
     "params": Group({
         "render": Tool("vessel_track.node_params", "write config/parts/fuser.yaml and gps_publisher.yaml with "
                        "every parameter and its description", "--out config/parts [--params FILE]", ("render",)),
     }),
-    "simulate": Tool("vessel_track.simulation", "the tracker on simulated harbour traffic: id switches, extra "
+    "simulate": Tool("vessel_tools.track.simulation", "the tracker on simulated harbour traffic: id switches, extra "
                      "tracks, RMSE", "[--interval 4 1 0.1] [--seeds 6]"),
     "replay-check": Tool("vessel_tools.replay_check", "replay bags through camera and detector at a rate: frames "
                          "sent, received, dropped", "BAG... [--rate R]"),

@@ -23,17 +23,17 @@ from pathlib import Path
 
 import yaml
 
-from vessel_calib.dataset import TRAIN_VIDEOS, Dataset
+from vessel_tools.calib.dataset import TRAIN_VIDEOS, Dataset
 from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos
-from vessel_detect.bag_build import BuildOptions, build_from_dataset
+from vessel_tools.detect.bag_build import BuildOptions, build_from_dataset
 from vessel_detect.bag_io import BagReader, ns_of_stamp, recover_bag
 from vessel_detect.replay_detector_node import CSV_COLUMNS
 from vessel_tools import calibrate as calibrate_tool
 from vessel_tools.demo_report import write_report
-from vessel_tools.graph import (
+from vessel_bringup.graph import (
     GRAPH_NODES,
     RECORDER,
     GraphNode,
@@ -42,10 +42,10 @@ from vessel_tools.graph import (
     repo_root,
     wait_until_connected,
 )
-from vessel_tools.graph_watcher import GraphWatcher
-from vessel_track.evaluation import FIX_COLUMNS
+from vessel_bringup.graph_watcher import GraphWatcher
+from vessel_tools.track.evaluation import FIX_COLUMNS
 from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
-from vessel_track.offline_data import DetectionFrame
+from vessel_tools.track.offline_data import DetectionFrame
 from vessel_track.tracker import load_tracker_config
 from vessel_track.tracker_node import detections_to_arrays, load_detection_inputs
 
@@ -399,12 +399,12 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     """``predictions_offline.csv``: the recorded detections through the paper's offline pass (recorded data).
 
     The same tracker and fuser cores the nodes run, with the parameter file's settings, then the trajectory
-    joining, scoring and smoothing over the whole video that only recorded data allows (``vessel_track.pipeline``,
+    joining, scoring and smoothing over the whole video that only recorded data allows (``vessel_tools.track.pipeline``,
     mode ``offline``). With ``hand_boxes`` the boxes are read as the fuser node read them
     (``FuserSettings.for_hand_boxes``). Each box's confidence is what the tracker node took from the same message
     (``detections_to_arrays`` with the file's ``classes`` and ``confidence_class``).
     """
-    from vessel_track.pipeline import PipelineConfig, run_video, write_predictions_csv
+    from vessel_tools.track.pipeline import PipelineConfig, run_video, write_predictions_csv
 
     camera = load_camera_yaml(calibration)
     classes, confidence_class = load_detection_inputs(params_file)
@@ -434,7 +434,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     videos = dataset.check_videos(parse_videos(args.videos)) if args.videos else dataset.default_videos()
     saved = None
     if args.detections not in ("detector", "labels"):  # read first: a bad file fails before any work
-        from vessel_track.offline_data import csv_detections
+        from vessel_tools.track.offline_data import csv_detections
 
         saved = csv_detections(Path(args.detections), dataset, videos)
     out = args.out or repo_root() / "out" / "demo"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from vessel_track.evaluation import evaluate, format_covariance_line, format_table, score_fix_covariances
+from vessel_tools.track.evaluation import evaluate, format_covariance_line, format_table, score_fix_covariances
 
 PAPER_SPLITS = {"13-16": [13, 14, 15, 16], "13-17": [13, 14, 15, 16, 17]}
 

@@ -13,8 +13,8 @@ from vessel_track.distance_model import (
     depth_scale,
     ideal_y_of_depth,
 )
-from vessel_track.distance_model_fit import fit_distance_model
-from vessel_track.simulation import CHALLENGE_H, CHALLENGE_K1, challenge_camera
+from vessel_tools.track.distance_model_fit import fit_distance_model
+from vessel_tools.track.simulation import CHALLENGE_H, CHALLENGE_K1, challenge_camera
 
 
 def _world_points(n=80, seed=0):
@@ -103,7 +103,7 @@ def test_fit_tool_keeps_the_files_other_fusion_settings(data_dir, tmp_path):
     """
     import yaml
 
-    from vessel_track.distance_model_fit import main
+    from vessel_tools.track.distance_model_fit import main
     from vessel_track.fuser_settings import load_fuser_settings
 
     repo = Path(__file__).resolve().parents[3]

@@ -5,7 +5,7 @@ import yaml
 
 from vessel_common.errors import DataError
 from vessel_track.error_model import PAPER_SLOPE, ErrorModel
-from vessel_track.error_model_fit import fit_error_model, main
+from vessel_tools.track.error_model_fit import fit_error_model, main
 
 
 def test_paper_default_and_sigma():

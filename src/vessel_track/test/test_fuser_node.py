@@ -29,7 +29,7 @@ def _executable(name):
 
 def write_params(path, camera_block=None, extra=""):
     from vessel_calib.params import dump_params_yaml
-    from vessel_track.simulation import challenge_camera
+    from vessel_tools.track.simulation import challenge_camera
 
     camera = camera_block if camera_block is not None else challenge_camera().to_params()
     path.write_text(dump_params_yaml({"/**": {"camera": camera}}) + extra)
@@ -77,7 +77,7 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path, ros
 
     from vessel_common.node_support import matched_subscribers, reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import VesselTrackArray
-    from vessel_track.simulation import challenge_camera
+    from vessel_tools.track.simulation import challenge_camera
 
     params = write_params(tmp_path / "params.yaml")
     processes = [start_node("vessel_track", name, "--ros-args", "--params-file", str(params))
@@ -176,7 +176,7 @@ def test_bad_calibration_refuses_to_start_with_one_line(tmp_path, problem, ros_e
 @pytest.mark.parametrize("problem", ["no_calibration", "no_H", "no_K1_nor_box_anchor"])
 def test_a_missing_calibration_or_calibration_key_refuses_to_start(tmp_path, problem, ros_env):
     """A file without H used to run silently on the paper's homography (heading 76.5 degrees, not the file's)."""
-    from vessel_track.simulation import challenge_camera
+    from vessel_tools.track.simulation import challenge_camera
 
     env = ros_env
     camera = challenge_camera().to_params()
@@ -199,7 +199,7 @@ def test_a_missing_calibration_or_calibration_key_refuses_to_start(tmp_path, pro
 @pytest.mark.parametrize("problem", ["old_fusion_anchor", "box_anchor_outside_the_box"])
 def test_parameters_from_before_the_box_anchor_refuse_to_start(tmp_path, problem, ros_env):
     env = ros_env
-    from vessel_track.simulation import challenge_camera
+    from vessel_tools.track.simulation import challenge_camera
 
     camera = dict(challenge_camera().to_params(), box_anchor=2.0 if problem == "box_anchor_outside_the_box" else 0.65)
     params = write_params(tmp_path / "p.yaml", camera_block=camera)
@@ -223,7 +223,7 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path, 
     from vessel_common.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
     from vessel_track.node_params import render_fuser_yaml
-    from vessel_track.simulation import fuser_settings_of_simulation, vessel_of_interest_scenario
+    from vessel_tools.track.simulation import fuser_settings_of_simulation, vessel_of_interest_scenario
 
     result = vessel_of_interest_scenario(seed=3).run()
     camera = result.camera
@@ -300,7 +300,7 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path, 
 @pytest.mark.parametrize("problem", ["missing_file", "calibration_without_a_level", "none"])
 def test_a_water_level_file_is_checked_at_start(tmp_path, problem, ros_env, start_node, wait_until):
     """The tide needs a readable file and a calibration made with it; either missing refuses to start, in one line."""
-    from vessel_track.simulation import challenge_camera
+    from vessel_tools.track.simulation import challenge_camera
 
     env = ros_env
     tide = tmp_path / "tide.csv"

@@ -21,9 +21,9 @@ from vessel_track.fusion import (
     fuse_boxes,
     gls_weights,
 )
-from vessel_track.pipeline import screen_track_of
+from vessel_tools.track.pipeline import screen_track_of
 from vessel_track.selection import SelectionConfig
-from vessel_track.simulation import challenge_camera, harbour_scenario
+from vessel_tools.track.simulation import challenge_camera, harbour_scenario
 from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
 MODEL = BoxSizeDistanceModel(a=3000.0, b=5.0, c=1500.0, d=2.0)

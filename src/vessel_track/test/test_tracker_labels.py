@@ -17,7 +17,7 @@ VALIDATION_VIDEOS = (13, 14, 15, 16, 17)
 
 
 def _dataset():
-    from vessel_calib.dataset import Dataset
+    from vessel_tools.calib.dataset import Dataset
     from vessel_common.paths import default_data_dir
 
     root = default_data_dir()

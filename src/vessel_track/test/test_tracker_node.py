@@ -72,7 +72,7 @@ def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
 
     from vessel_common.node_support import reliable_qos, stamp_to_sec
     from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
-    from vessel_track.simulation import harbour_scenario
+    from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
     tracker, node, spin_until = ros_graph
@@ -186,7 +186,7 @@ def test_a_standby_tracker_publishes_only_once_promoted(start_node, driver, ask_
 
     from vessel_common.node_support import reliable_qos
     from vessel_msgs.msg import Detection2DArray, VesselTrackArray
-    from vessel_track.simulation import harbour_scenario
+    from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
     tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS),

@@ -40,7 +40,7 @@ class SelectionConfig:
 
     confidence_percentile: percentile of the detector confidences in the score (the paper: 80). 50 (the median)
         by default: chosen on training videos 7-12 with the appearance cue as confidence
-        (``vessel_track.appearance``), where a track that swapped onto the vessel of interest for a few frames
+        (``vessel_tools.track.appearance``), where a track that swapped onto the vessel of interest for a few frames
         must not inherit its high confidences (leave-one-video-out, probability as confidence, boxes below 0.3
         dropped: offline 28 m/100 m at 50 against 50 at 80; online 43 against 42).
     min_step_m: path steps shorter than this are not added (filters jitter of a standing object).

@@ -1,0 +1,137 @@
+"""``vessel_bringup.graph``: how a hot standby is started and promoted (no processes); a camera and detector alone."""
+
+from __future__ import annotations
+
+import signal
+
+import pytest
+import yaml
+
+from vessel_bringup import graph
+from vessel_bringup.graph_nodes import GRAPH_NODES
+
+
+class _FakeProcess:
+    def __init__(self):
+        self.signals: list[int] = []
+
+    def poll(self):
+        return None
+
+    def send_signal(self, number):
+        self.signals.append(number)
+
+
+def test_a_spare_gets_its_nodes_blocks_under_its_namespaced_name(tmp_path, monkeypatch):
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"use_sim_time": False}},
+        "fuser": {"ros__parameters": {"selection": {"recent_evidence_s": 16.0, "evidence_clip": 4.0}}},
+        "/fuser": {"ros__parameters": {"selection": {"recent_evidence_s": 8.0}}},
+    }))
+    no_wildcard = tmp_path / "dump.yaml"  # like `ros2 param dump`: the node's block only
+    no_wildcard.write_text(yaml.safe_dump({"/fuser": {"ros__parameters": {"qos_depth": 7}}}))
+    spawned = []
+
+    def fake_spawn(self, node, args, label, append_log, parameters, ignore_sigusr1=False):
+        spawned.append((args, label, ignore_sigusr1))
+        return graph.RunningNode(node, _FakeProcess(), None, None, parameters)
+
+    monkeypatch.setattr(graph.GraphRunner, "_spawn", fake_spawn)
+    runner = graph.GraphRunner([params, no_wildcard], log_dir=tmp_path / "logs")
+    fuser = next(node for node in GRAPH_NODES if node.name == "fuser")
+    runner.start(fuser, {"state_file": "/tmp/fuser.state"})
+    spare = runner.start_spare("fuser")
+    args, label, ignore_sigusr1 = spawned[-1]
+    assert ignore_sigusr1 and label == "fuser.standby_1" and spare.namespace == "/standby_1"
+    assert args[args.index("-r") + 1:args.index("-r") + 4] == ["__node:=fuser", "-r", "__ns:=/standby_1"]
+    written = yaml.safe_load((tmp_path / "logs" / "fuser.standby_1.overrides.yaml").read_text())
+    assert written == {"/standby_1/fuser": {"ros__parameters": {
+        "selection.recent_evidence_s": 8.0, "selection.evidence_clip": 4.0, "qos_depth": 7,
+        "state_file": "/tmp/fuser.state", "standby": True}}}
+
+    active = runner.running["fuser"].process
+    promoted = runner.promote_spare("fuser")
+    assert promoted is spare and runner.running["fuser"] is spare and "fuser" not in runner.spares
+    assert spare.process.signals == [signal.SIGUSR1] and active.signals == []
+    runner.repeat_promotions()  # in case it was still starting and ignored the first
+    assert spare.process.signals == [signal.SIGUSR1, signal.SIGUSR1]
+    assert runner.promote_spare("fuser") is None  # no spare left until a new one is started
+
+
+def test_a_replayed_camera_holds_its_first_frame_for_the_graphs_own_detector(tmp_path):
+    """At a rate above 0 the camera's automatic wait is none: the graph makes it wait for its detector.
+
+    Seen in CI: a replay at rate 4 whose first three frames went out before the detector's subscription matched.
+    """
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"use_sim_time": False}},
+        "camera": {"ros__parameters": {"rate": 2.0, "wait_for_subscribers": -1}},
+    }))
+    later = tmp_path / "later.yaml"
+    later.write_text(yaml.safe_dump({"/camera": {"ros__parameters": {"rate": 4.0}}}))
+    values = graph.GraphRunner([params, later]).file_parameters("camera")
+    assert values == {"use_sim_time": False, "rate": 4.0, "wait_for_subscribers": -1}
+    assert graph.camera_waits_for_detector(values, {}, local_detector=True) == {"wait_for_subscribers": 1}
+    assert graph.camera_waits_for_detector({}, {}, local_detector=True) == {"wait_for_subscribers": 1}
+    # Rate 0 keeps the automatic wait, which also waits for the detector's acknowledgements.
+    assert graph.camera_waits_for_detector(values, {"rate": 0.0}, local_detector=True) == {}
+    assert graph.camera_waits_for_detector({"rate": 0.0}, {}, local_detector=True) == {}
+    # A value the user set, and a graph with no detector of its own (or --no-wait), are left alone.
+    assert graph.camera_waits_for_detector({"wait_for_subscribers": 0}, {}, local_detector=True) == {}
+    assert graph.camera_waits_for_detector(values, {}, local_detector=False) == {}
+
+
+@pytest.mark.ros
+def test_a_camera_and_detector_alone_start_at_once_with_no_wait(ros_env, tmp_path):
+    """`--nodes camera,detector` waits for a tracker elsewhere; `--no-wait` runs the two alone to the source's end."""
+    import subprocess
+    import sys
+
+    from vessel_fixtures import detect_synthetic as synthetic
+
+    synthetic.write_bag(tmp_path / "bag", frames=4)
+    run = subprocess.run([sys.executable, "-m", "vessel_bringup.graph", "--source", str(tmp_path / "bag"), "--nodes",
+                          "camera,detector", "--no-wait", "--exit-at-end", "--connect-timeout", "1", "--log-dir",
+                          str(tmp_path / "logs")], env=ros_env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "started camera" in run.stderr and "did not connect" not in run.stderr
+
+
+def test_ctrl_c_ends_the_wait_for_the_graph_to_connect():
+    """Ctrl-C (the handler sets ``stop``) used to go unheeded until the connection time-out, a minute later."""
+    import threading
+    import time
+
+    class NeverConnected:
+        def connected(self, **links):
+            return False
+
+        def detector_connected(self):
+            return False
+
+        def spin(self, seconds):
+            time.sleep(0.01)
+
+    class NothingFailed:
+        def failed(self):
+            return []
+
+    stop = threading.Event()
+    threading.Timer(0.2, stop.set).start()
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        graph.wait_until_connected(NothingFailed(), NeverConnected(), 60.0, "nowhere", stop, detector_only=True)
+    assert time.monotonic() - started < 30.0
+
+
+def test_a_camera_source_that_does_not_exist_is_refused_before_any_node_starts(tmp_path, capsys, monkeypatch):
+    def no_process(*args, **kwargs):
+        raise AssertionError("a node was started")
+
+    monkeypatch.setattr(graph.GraphRunner, "start", no_process)
+    for nodes in ("camera,detector", "camera,detector,tracker,fuser,gps_publisher"):
+        assert graph.main(["--source", str(tmp_path / "video_99"), "--nodes", nodes]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: source ") and "video_99 does not exist" in err, err

@@ -1,0 +1,1 @@
+"""Synthetic cameras, frames and ONNX models for the tests (not installed)."""
