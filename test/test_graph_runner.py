@@ -21,8 +21,9 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
     from vessel_detect.bag_io import BagReader
 
     bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "14",
-                            "--out", str(bags)], env=ros_env, capture_output=True, text=True, timeout=300)
+    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
+                            "--videos", "14", "--out", str(bags)], env=ros_env, capture_output=True, text=True,
+                           timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     recording = tmp_path / "recording"
     run = subprocess.run([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_14"),
@@ -56,8 +57,9 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
     from vessel_detect.bag_io import BagReader
 
     bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "15",
-                            "--out", str(bags)], env=ros_env, capture_output=True, text=True, timeout=300)
+    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
+                            "--videos", "15", "--out", str(bags)], env=ros_env, capture_output=True, text=True,
+                           timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
     logs, recording = tmp_path / "logs", tmp_path / "recording"
     graph = subprocess.Popen([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_15"),

@@ -31,8 +31,8 @@ def _launch_available() -> str | None:
 @pytest.fixture(scope="module")
 def video_bag(data_dir, tmp_path_factory):
     bags = tmp_path_factory.mktemp("bags")
-    done = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir), "--videos", "13",
-                           "--out", str(bags)], capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
+                           "--videos", "13", "--out", str(bags)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     return bags / "video_13"
 

@@ -33,16 +33,19 @@ ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_in
 
 _BY_LAYER = {
     "common": """vessel_common vessel_common.errors vessel_common.imports vessel_common.paths vessel_common.state_file
-                 vessel_common.command_line vessel_common.parameter_names vessel_calib vessel_calib.geodesy
+                 vessel_common.command_line vessel_common.parameter_names vessel_common.parameter_table
+                 vessel_calib vessel_calib.geodesy
                  vessel_detect vessel_track vessel_tools""",
-    "core": """vessel_calib.camera_model vessel_calib.params vessel_calib.gps_track vessel_calib.water_level
+    "core": """vessel_calib.camera_model vessel_calib.calibration_parameters vessel_calib.params vessel_calib.gps_track
+               vessel_calib.water_level
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
                vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
-               vessel_detect.detections_csv vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
+               vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing
+               vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
-               vessel_track.fuser_settings""",
-    "ros": """vessel_common.node_support vessel_calib.camera_parameters vessel_detect.bag_io
+               vessel_track.fuser_settings vessel_track.parameter_tables""",
+    "ros": """vessel_common.node_support vessel_common.node_parameters vessel_calib.camera_parameters vessel_detect.bag_io
               vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params""",
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
@@ -54,7 +57,7 @@ _BY_LAYER = {
                 vessel_tools.detect.frame_boxes vessel_tools.detect.bag_build vessel_tools.detect.recall
                 vessel_tools.detect.training vessel_tools.detect.training.augment vessel_tools.detect.training.labels
                 vessel_tools.detect.training.loss vessel_tools.detect.training.model
-                vessel_tools.detect.training.model_card vessel_tools.detect.training.quantize
+                vessel_tools.detect.training.model_card
                 vessel_tools.detect.training.settings vessel_tools.detect.training.train_cli
                 vessel_tools.detect.training.trainer
                 vessel_tools.track vessel_tools.track.offline_data vessel_tools.track.pipeline
@@ -62,7 +65,8 @@ _BY_LAYER = {
                 vessel_tools.track.error_model_fit vessel_tools.track.simulation""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
                vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart
-               vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page""",
+               vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page
+               vessel_tools.parameter_docs""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 

@@ -18,7 +18,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 INSTALL_DIR = REPO_ROOT / "ros2_ws" / "install"
 PYTHON_PACKAGES = ("vessel_calib", "vessel_detect", "vessel_track", "vessel_bringup", "vessel_tools")
 TOOLS_NOT_NODES = {("vessel_bringup", "graph")} | {("vessel_tools", tool) for tool in (
-    "vessel", "demo", "graph", "bench", "eval", "pipeline", "fit", "bag_build")}
+    "vessel", "demo", "bench", "eval", "pipeline", "fit", "bag_build")}
 
 
 def declared_executables() -> list[tuple[str, str]]:

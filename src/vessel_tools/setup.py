@@ -1,6 +1,7 @@
 """Install vessel_tools: the offline tools (calibration fit, training, bags, pipeline, evaluation, demo, benchmarks).
 
-And the one `vessel` command line over them."""
+And the one `vessel` command line over them.
+"""
 from setuptools import find_packages, setup
 
 PACKAGE = "vessel_tools"
@@ -24,7 +25,6 @@ setup(
             "vessel = vessel_tools.cli:console",
             "calibrate = vessel_tools.calibrate:main",
             "demo = vessel_tools.cli:demo",
-            "graph = vessel_tools.cli:graph",
             "bench = vessel_tools.cli:bench",
             "eval = vessel_tools.cli:evaluate",
             "pipeline = vessel_tools.cli:pipeline",

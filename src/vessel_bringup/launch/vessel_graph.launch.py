@@ -25,8 +25,6 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-
-from vessel_common.errors import VesselError
 from vessel_bringup.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
@@ -36,6 +34,8 @@ from vessel_bringup.graph_nodes import (
     file_parameters,
     sim_time_for_source,
 )
+
+from vessel_common.errors import VesselError
 
 
 def _nodes(context):

@@ -21,12 +21,6 @@ from pathlib import Path
 
 import yaml
 
-from vessel_common.command_line import command_line_tool
-from vessel_common.errors import VesselError
-from vessel_common.parameter_names import flatten
-from vessel_common.paths import repo_root
-from vessel_common.state_file import remove_state_file
-from vessel_bringup.graph_watcher import GraphWatcher
 from vessel_bringup.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
@@ -39,6 +33,12 @@ from vessel_bringup.graph_nodes import (
     restart_delay_s,
     sim_time_for_source,
 )
+from vessel_bringup.graph_watcher import GraphWatcher
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import VesselError
+from vessel_common.parameter_names import flatten
+from vessel_common.paths import repo_root
+from vessel_common.state_file import remove_state_file
 
 
 def install_dir() -> Path:
@@ -274,8 +274,44 @@ class GraphRunner:
         return "\n".join(running.log_path.read_text(errors="replace").splitlines()[-lines:])
 
 
+class StopRequest:
+    """What SIGINT and SIGTERM ask of the graph runner: to stop. Its loops poll ``is_set()``.
+
+    The handler only assigns a plain attribute. It used to call ``threading.Event.set()``, which takes the event's
+    lock: a second signal arriving while the first handler held it (Ctrl-C twice, or SIGTERM after Ctrl-C) ran the
+    handler again in the same thread, which then waited for its own lock, and the runner hung for good with its
+    nodes running. ``install``/``restore`` put the handler in place and the previous ones back.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signal: int | None = None  # the first signal received
+        self._previous: dict[int, object] = {}
+
+    def handler(self, signum: int, frame: object) -> None:
+        """The signal handler: note the signal and return (no lock, no I/O: safe however often it interrupts)."""
+        if self.signal is None:
+            self.signal = signum
+
+    def is_set(self) -> bool:
+        """Whether a stop was asked for."""
+        return self.signal is not None
+
+    def install(self) -> None:
+        """Handle SIGINT and SIGTERM with ``handler`` (in the main thread, where Python runs signal handlers)."""
+        for signum in self.SIGNALS:
+            self._previous.setdefault(signum, signal.signal(signum, self.handler))
+
+    def restore(self) -> None:
+        """Put back the handlers ``install`` replaced."""
+        while self._previous:
+            signum, previous = self._previous.popitem()
+            signal.signal(signum, previous if previous is not None else signal.SIG_DFL)  # None: set outside Python
+
+
 def wait_until_connected(runner: GraphRunner, watcher: GraphWatcher, timeout_s: float, where: str,
-                         stop: threading.Event | None = None, **links) -> None:
+                         stop: StopRequest | threading.Event | None = None, **links) -> None:
     """Spin ``watcher`` until the graph is connected (``GraphWatcher.connected(**links)``), before the camera.
 
     A frame published before every link is matched is lost without a count; this is what keeps the first frames.
@@ -401,6 +437,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph until Ctrl-C (or the end of the source with --exit-at-end)."""
     args = parse_args(argv)
     runner: GraphRunner | None = None
+    stop_requested = StopRequest()
     try:
         params = [args.params or default_params_file(), args.calib or default_calibration_file()]
         wanted = [name.strip() for name in args.nodes.split(",") if name.strip()]
@@ -413,9 +450,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             from vessel_detect.sources import check_source
 
             check_source(args.source or str(runner.file_parameters("camera").get("source") or ""))
-        stop_requested = threading.Event()
-        signal.signal(signal.SIGINT, lambda *_: stop_requested.set())
-        signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
+        stop_requested.install()
         backoff: dict[str, float] = {}  # node -> monotonic time before which it is not restarted
         spare_failures: dict[str, int] = {}
         if args.hot_standby and not args.respawn:
@@ -482,6 +517,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             elif failed:
                 print(f"[graph] node(s) exited with an error: {failed}", file=sys.stderr)
                 break
+        if stop_requested.is_set():
+            print(f"[graph] {signal.Signals(stop_requested.signal).name}: stopping every node", file=sys.stderr)
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
         return 0 if all(code == 0 for name, code in statuses.items() if not name.endswith("(standby)")) else 1
@@ -489,6 +526,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if runner is not None:  # never leave started nodes behind
             runner.stop()
         raise
+    finally:
+        stop_requested.restore()
 
 
 if __name__ == "__main__":

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_h
 
 from vessel_calib import geodesy
 from vessel_calib.camera_model import CameraModel
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_h
 from vessel_common.errors import CalibrationError
 
 PAPER_H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]

@@ -2,6 +2,7 @@ import os
 
 import pytest
 import yaml
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON
 
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.params import (
@@ -13,7 +14,6 @@ from vessel_calib.params import (
     write_camera_yaml,
     write_params_yaml,
 )
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON
 from vessel_common.errors import CalibrationError
 
 PAPER_H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]

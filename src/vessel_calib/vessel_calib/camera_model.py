@@ -15,92 +15,45 @@ Conventions (checked against the AI Tracks at Sea data, see ``../shared/aitas/RE
 * Heading: the paper's method: the ideal horizon point at ``x_p = x_c`` back-projected through ``H^-1`` gives
   the direction (x_w, y_w) the camera looks in; heading = atan2(x_w, y_w), degrees clockwise from north.
 
-Everything is vectorised: arrays of any (broadcastable) shape in, arrays of that shape out.
+Everything is vectorised: arrays of any (broadcastable) shape in, arrays of that shape out. The lens is
+``vessel_calib.radial_lens``, the pinhole camera behind H ``vessel_calib.pinhole`` and the ``camera:`` parameter block
+``vessel_calib.camera_model_params``; this module joins them and checks what makes a camera.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from vessel_calib import geodesy
+from vessel_calib.camera_model_params import (
+    camera_arguments_of_params,
+    homography_of_params,
+    is_number,
+    params_of_camera,
+)
+from vessel_calib.pinhole import PinholeGeometry, pinhole_geometry
+from vessel_calib.radial_lens import RadialLens
 from vessel_common.errors import CalibrationError
 
 #: Condition number above which H is treated as singular.
 MAX_H_CONDITION = 1e12
 #: |K1| * r_corner^2 above this changes the corner radius by more than 100 %: no real lens, a unit mistake.
 MAX_K1_CORNER_EFFECT = 1.0
-#: Undistortion must reproduce the screen point to this many pixels.
-UNDISTORT_TOLERANCE_PX = 1e-6
-_UNDISTORT_MAX_ITER = 80
 #: Relative margin on z_p below which a point counts as on the horizon.
 _HORIZON_EPS = 1e-9
 
 #: The paper's box reference point: the box centre (and that of every calibration file without ``box_anchor``).
 PAPER_BOX_ANCHOR = 0.5
-PARAM_KEYS_REQUIRED = ("camera_lat", "camera_lon", "image_width", "image_height", "H", "K1", "center_x", "center_y")
 
 
 def box_points(boxes_xyxy, anchor: float) -> np.ndarray:
     """(N, 2) points of boxes (x1, y1, x2, y2): the horizontal centre, ``anchor`` of the way down (0 top, 1 bottom)."""
     b = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
     return np.column_stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 1] + anchor * (b[:, 3] - b[:, 1])])
-
-
-@dataclass(frozen=True)
-class PinholeGeometry:
-    """The pinhole camera a sea-plane homography implies (``CameraModel.pinhole``).
-
-    focal_px: focal length, ideal pixels. height_m: camera height above the water. nadir_xy: the sea point below
-    the camera, world metres (near (0, 0) when the camera's GPS position is right). skew: |cos| of the angle
-    between H's first two rotation columns after the fit (0 for an exact pinhole), aspect their length ratio (1).
-    above_water: False when the camera centre H implies lies under the sea plane (no real camera: a wrong match).
-    """
-
-    focal_px: float
-    height_m: float
-    nadir_xy: tuple[float, float]
-    skew: float
-    aspect: float
-    above_water: bool = True
-
-
-def pinhole_decomposition(H: np.ndarray, center) -> tuple[np.ndarray, ...]:
-    """The pinhole cameras behind (B, 3, 3) sea-plane homographies: ``CameraModel.pinhole`` for many at once.
-
-    Returns focal (B,), camera centre (B, 3) in world metres, skew (B,), aspect (B,), valid (B,); the label-free
-    search decomposes its hypotheses with it.
-    H = K [r1 r2 t] for a camera with square pixels and its principal point at ``center``: the focal length is the
-    one that makes r1 and r2 orthogonal and of equal length (least squares of the two conditions). ``valid`` is
-    False where no positive focal length fits; the other values there are meaningless.
-    """
-    cx, cy = center
-    a = H[:, 0, :] - cx * H[:, 2, :]
-    b = H[:, 1, :] - cy * H[:, 2, :]
-    c = H[:, 2, :]
-    p, q = a[:, 0] * a[:, 1] + b[:, 0] * b[:, 1], c[:, 0] * c[:, 1]
-    r = a[:, 0] ** 2 + b[:, 0] ** 2 - a[:, 1] ** 2 - b[:, 1] ** 2
-    s = c[:, 0] ** 2 - c[:, 1] ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = p * p + r * r
-        inv_f2 = np.where(denom > 0, -(p * q + r * s) / np.where(denom > 0, denom, 1.0), np.nan)
-        valid = np.isfinite(inv_f2) & (inv_f2 > 0)
-        f = 1.0 / np.sqrt(np.where(valid, inv_f2, 1.0))
-        M = np.stack([a / f[:, None], b / f[:, None], c], axis=1)
-        n1, n2 = np.linalg.norm(M[:, :, 0], axis=1), np.linalg.norm(M[:, :, 1], axis=1)
-        scale = -1.0 / np.sqrt(n1 * n2)  # z_p < 0 in front: the camera's z is -z_p
-        r1, r2, t = (M[:, :, k] * scale[:, None] for k in range(3))
-        skew = np.abs(np.sum(r1 * r2, axis=1)) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
-        aspect = n1 / n2
-    finite = valid & np.isfinite(r1).all(axis=1) & np.isfinite(r2).all(axis=1) & np.isfinite(t).all(axis=1)
-    rotation = np.where(finite[:, None, None], np.stack([r1, r2, np.cross(r1, r2)], axis=2), np.eye(3))
-    u, _, vt = np.linalg.svd(rotation)
-    centre = -np.einsum("bji,bj->bi", u @ vt, np.where(finite[:, None], t, 0.0))
-    return f, centre, skew, aspect, valid
 
 
 def _same_number(a: float, b: float) -> bool:
@@ -111,8 +64,85 @@ def _arr(value) -> np.ndarray:
     return np.asarray(value, dtype=float)
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool | np.bool_)
+def _checked_levels(water_level_m, height_m) -> tuple[float, float]:
+    """The water level and the camera height: finite metres or NaN (unknown), a known height above the water."""
+    for name, value in (("water_level_m", water_level_m), ("height_m", height_m)):
+        if not is_number(value) or math.isinf(float(value)):
+            raise CalibrationError(f"{name} must be a finite number of metres (or NaN: unknown), got {value!r}")
+    if math.isfinite(float(height_m)) and float(height_m) <= 0:
+        raise CalibrationError(f"height_m is the camera's height above the water and must be > 0, got {height_m!r}")
+    return float(water_level_m), float(height_m)
+
+
+def _checked_box_anchor(box_anchor) -> float:
+    if not is_number(box_anchor) or not 0.0 <= float(box_anchor) <= 1.0:
+        raise CalibrationError(
+            f"box_anchor must be a number in [0, 1] (0 box top, 0.5 centre, 1 bottom), got {box_anchor!r}")
+    return float(box_anchor)
+
+
+def _checked_homography(H) -> np.ndarray:
+    """H as a 3x3 float array that can map screen points back to the sea (finite, not near singular)."""
+    try:
+        H_arr = np.array(H, dtype=float).reshape(3, 3)
+    except (TypeError, ValueError):
+        raise CalibrationError(
+            f"H must be a 3x3 matrix or 9 numbers row-major, got {H!r}; re-run the calibration") from None
+    if not np.all(np.isfinite(H_arr)):
+        raise CalibrationError("H contains NaN or infinite values; re-run the calibration to get a finite H")
+    if not np.any(H_arr):
+        raise CalibrationError("H is all zeros (singular); re-run the calibration")
+    cond = np.linalg.cond(H_arr)
+    if not np.isfinite(cond) or cond > MAX_H_CONDITION:
+        raise CalibrationError(
+            f"H is singular or nearly so (condition number {cond:.3g} > {MAX_H_CONDITION:.0e}): it cannot "
+            "map screen points back to the sea; re-run the calibration with well spread, non-collinear pairs")
+    return H_arr
+
+
+def _checked_image(image_size, center) -> tuple[int, int, float, float]:
+    """Width and height (positive integers) and the distortion centre inside the image."""
+    try:
+        width, height = (int(v) for v in image_size)
+        if (width, height) != tuple(float(v) for v in image_size):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise CalibrationError(f"image_size must be two integers (width, height), got {image_size!r}") from None
+    if width <= 0 or height <= 0:
+        raise CalibrationError(f"image_size must be positive, got {width}x{height}")
+    try:
+        cx, cy = (float(v) for v in center)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"center must be two numbers (x_c, y_c), got {center!r}") from None
+    if not (math.isfinite(cx) and math.isfinite(cy)) or not (0 <= cx <= width and 0 <= cy <= height):
+        raise CalibrationError(
+            f"distortion centre ({cx}, {cy}) is not inside the {width}x{height} image; use the image centre")
+    return width, height, cx, cy
+
+
+def _checked_k1(K1, width: int, height: int, cx: float, cy: float) -> float:
+    """K1 as a float that a real lens could have on this image (a wrong unit or convention is far off)."""
+    if not is_number(K1) or not math.isfinite(float(K1)):
+        raise CalibrationError(f"K1 must be a finite number, got {K1!r}")
+    K1 = float(K1)
+    if abs(K1) < 1e-30:
+        K1 = 0.0  # physically no distortion; avoids overflow in the fold radius
+    r_corner2 = max((px - cx) ** 2 + (py - cy) ** 2 for px in (0, width) for py in (0, height))
+    if abs(K1) * r_corner2 > MAX_K1_CORNER_EFFECT:
+        raise CalibrationError(
+            f"K1 = {K1:.4g} is absurd for a {width}x{height} image: it changes the corner radius by "
+            f"{100 * abs(K1) * r_corner2:.0f} %; expect |K1| < {MAX_K1_CORNER_EFFECT / r_corner2:.2g} (paper: "
+            "-4.05e-7). Check the convention x_s = x_c + (x_p - x_c)(1 + K1 r_p^2) and full-resolution pixels")
+    return K1
+
+
+def _checked_position(camera_lat, camera_lon) -> tuple[float | None, float | None]:
+    if (camera_lat is None) != (camera_lon is None):
+        raise CalibrationError("give both camera_lat and camera_lon, or neither")
+    if camera_lat is not None:
+        geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (camera_lat, camera_lon)")
+        camera_lat, camera_lon = float(camera_lat), float(camera_lon)
+    return camera_lat, camera_lon
 
 
 class CameraModel:
@@ -139,90 +169,37 @@ class CameraModel:
     """
 
     __slots__ = (
-        "_H", "_Hinv", "_K1", "_center", "_image_size", "_camera_lat", "_camera_lon",
-        "_horizon", "_r_fold", "_rs_max", "_heading", "_box_anchor", "_water_level_m", "_height_m",
-        "_pinhole",
+        "_H", "_Hinv", "_lens", "_image_size", "_camera_lat", "_camera_lon",
+        "_horizon", "_heading", "_box_anchor", "_water_level_m", "_height_m", "_pinhole",
     )
 
     def __init__(self, H, K1: float = 0.0, center=(640.0, 360.0), image_size=(1280, 720),
                  camera_lat: float | None = None, camera_lon: float | None = None,
                  box_anchor: float = PAPER_BOX_ANCHOR, water_level_m: float = math.nan, height_m: float = math.nan):
-        for name, value in (("water_level_m", water_level_m), ("height_m", height_m)):
-            if not _is_number(value) or math.isinf(float(value)):
-                raise CalibrationError(f"{name} must be a finite number of metres (or NaN: unknown), got {value!r}")
-        if math.isfinite(float(height_m)) and float(height_m) <= 0:
-            raise CalibrationError(f"height_m is the camera's height above the water and must be > 0, got {height_m!r}")
-        self._water_level_m = float(water_level_m)
-        self._height_m = float(height_m)
+        self._water_level_m, self._height_m = _checked_levels(water_level_m, height_m)
         self._pinhole: PinholeGeometry | None = None
-        if not _is_number(box_anchor) or not 0.0 <= float(box_anchor) <= 1.0:
-            raise CalibrationError(
-                f"box_anchor must be a number in [0, 1] (0 box top, 0.5 centre, 1 bottom), got {box_anchor!r}")
-        self._box_anchor = float(box_anchor)
-        try:
-            H_arr = np.array(H, dtype=float).reshape(3, 3)
-        except (TypeError, ValueError):
-            raise CalibrationError(
-                f"H must be a 3x3 matrix or 9 numbers row-major, got {H!r}; re-run the calibration") from None
-        if not np.all(np.isfinite(H_arr)):
-            raise CalibrationError("H contains NaN or infinite values; re-run the calibration to get a finite H")
-        if not np.any(H_arr):
-            raise CalibrationError("H is all zeros (singular); re-run the calibration")
-        cond = np.linalg.cond(H_arr)
-        if not np.isfinite(cond) or cond > MAX_H_CONDITION:
-            raise CalibrationError(
-                f"H is singular or nearly so (condition number {cond:.3g} > {MAX_H_CONDITION:.0e}): it cannot "
-                "map screen points back to the sea; re-run the calibration with well spread, non-collinear pairs")
-
-        try:
-            width, height = (int(v) for v in image_size)
-            if (width, height) != tuple(float(v) for v in image_size):
-                raise ValueError
-        except (TypeError, ValueError):
-            raise CalibrationError(f"image_size must be two integers (width, height), got {image_size!r}") from None
-        if width <= 0 or height <= 0:
-            raise CalibrationError(f"image_size must be positive, got {width}x{height}")
-        try:
-            cx, cy = (float(v) for v in center)
-        except (TypeError, ValueError):
-            raise CalibrationError(f"center must be two numbers (x_c, y_c), got {center!r}") from None
-        if not (math.isfinite(cx) and math.isfinite(cy)) or not (0 <= cx <= width and 0 <= cy <= height):
-            raise CalibrationError(
-                f"distortion centre ({cx}, {cy}) is not inside the {width}x{height} image; use the image centre")
-
-        if not _is_number(K1) or not math.isfinite(float(K1)):
-            raise CalibrationError(f"K1 must be a finite number, got {K1!r}")
-        K1 = float(K1)
-        if abs(K1) < 1e-30:
-            K1 = 0.0  # physically no distortion; avoids overflow in the fold radius
-        r_corner2 = max((px - cx) ** 2 + (py - cy) ** 2 for px in (0, width) for py in (0, height))
-        if abs(K1) * r_corner2 > MAX_K1_CORNER_EFFECT:
-            raise CalibrationError(
-                f"K1 = {K1:.4g} is absurd for a {width}x{height} image: it changes the corner radius by "
-                f"{100 * abs(K1) * r_corner2:.0f} %; expect |K1| < {MAX_K1_CORNER_EFFECT / r_corner2:.2g} (paper: "
-                "-4.05e-7). Check the convention x_s = x_c + (x_p - x_c)(1 + K1 r_p^2) and full-resolution pixels")
-
-        if (camera_lat is None) != (camera_lon is None):
-            raise CalibrationError("give both camera_lat and camera_lon, or neither")
-        if camera_lat is not None:
-            geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (camera_lat, camera_lon)")
-            camera_lat, camera_lon = float(camera_lat), float(camera_lon)
-
-        self._K1 = K1
-        self._center = (cx, cy)
+        self._box_anchor = _checked_box_anchor(box_anchor)
+        H_arr = _checked_homography(H)
+        width, height, cx, cy = _checked_image(image_size, center)
+        K1 = _checked_k1(K1, width, height, cx, cy)
+        self._camera_lat, self._camera_lon = _checked_position(camera_lat, camera_lon)
+        self._lens = RadialLens(K1, (cx, cy))
         self._image_size = (width, height)
-        self._camera_lat = camera_lat
-        self._camera_lon = camera_lon
-        if K1 < 0:
-            self._r_fold = math.sqrt(-1.0 / (3.0 * K1))
-            self._rs_max = self._r_fold * (1.0 + K1 * self._r_fold ** 2)
-        else:
-            self._r_fold = math.inf
-            self._rs_max = math.inf
+        self._H, self._Hinv = self._facing_the_sea(H_arr)
+        a, b, c = self._Hinv[2]
+        norm = math.hypot(a, b)
+        self._horizon = (a / norm, b / norm, c / norm) if norm > 0 else (0.0, 0.0, 1.0)
+        self._heading = self._compute_heading()
 
-        # Normalise the sign of H so z_p < 0 in front: the bottom centre of the image must be sea in front.
+    def _facing_the_sea(self, H_arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """H and its inverse (read-only), signed so z_p < 0 in front: the bottom centre of the image is sea in front.
+
+        H and -H are the same homography; only this sign makes ``ideal_to_world``'s test of z_p mean "in front".
+        """
+        width, height = self._image_size
+        cx = self.center[0]
         Hinv = np.linalg.inv(H_arr)
-        bx, by = self._undistort_ok(np.array(cx), np.array(height - 1.0))[:2]
+        bx, by = self._lens.undistort(np.array(cx), np.array(height - 1.0))[:2]
         if not np.isfinite(bx):
             bx, by = cx, height - 1.0
         w_bottom = Hinv[2] @ np.array([float(bx), float(by), 1.0])
@@ -235,12 +212,7 @@ class CameraModel:
             Hinv = -Hinv
         H_arr.setflags(write=False)
         Hinv.setflags(write=False)
-        self._H = H_arr
-        self._Hinv = Hinv
-        a, b, c = Hinv[2]
-        norm = math.hypot(a, b)
-        self._horizon = (a / norm, b / norm, c / norm) if norm > 0 else (0.0, 0.0, 1.0)
-        self._heading = self._compute_heading()
+        return H_arr, Hinv
 
     # ----------------------------------------------------------------- properties
     @property
@@ -256,12 +228,12 @@ class CameraModel:
     @property
     def K1(self) -> float:  # noqa: N802
         """Radial distortion coefficient, 1/px^2."""
-        return self._K1
+        return self._lens.K1
 
     @property
     def center(self) -> tuple[float, float]:
         """Distortion centre (x_c, y_c), screen pixels."""
-        return self._center
+        return self._lens.center
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -315,7 +287,7 @@ class CameraModel:
     @property
     def max_screen_radius(self) -> float:
         """Largest screen distance from the centre that the lens model can undistort (inf when K1 >= 0)."""
-        return self._rs_max
+        return self._lens.rs_max
 
     @property
     def horizon_line_ideal(self) -> tuple[float, float, float]:
@@ -329,70 +301,13 @@ class CameraModel:
 
     # ----------------------------------------------------------------- lens
     def distort(self, xp, yp):
-        """Ideal pixel -> screen pixel: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2)."""
-        cx, cy = self._center
-        dx = _arr(xp) - cx
-        dy = _arr(yp) - cy
-        f = 1.0 + self._K1 * (dx * dx + dy * dy)
-        return cx + dx * f, cy + dy * f
+        """Ideal pixel -> screen pixel: x_s = x_c + (x_p - x_c)(1 + K1 r_p^2); the inverse is ``undistort``."""
+        return self._lens.distort(xp, yp)
 
     def undistort(self, xs, ys):
         """Screen pixel -> ideal pixel (Newton on the radius, < 1e-6 px); NaN where the lens model has no inverse."""
-        xp, yp, _ = self._undistort_ok(xs, ys)
+        xp, yp, _ = self._lens.undistort(xs, ys)
         return xp, yp
-
-    def _undistort_ok(self, xs, ys):
-        """Undistort and report where it converged on the monotonic branch of the lens model."""
-        cx, cy = self._center
-        dx = _arr(xs) - cx
-        dy = _arr(ys) - cy
-        dx, dy = np.broadcast_arrays(dx, dy)
-        shape = dx.shape
-        dx = dx.ravel()
-        dy = dy.ravel()
-        rs = np.hypot(dx, dy)
-        K1 = self._K1
-        finite = np.isfinite(rs)
-        if K1 == 0.0:
-            ok = finite
-            with np.errstate(invalid="ignore"):
-                return (np.where(ok, cx + dx, np.nan).reshape(shape), np.where(ok, cy + dy, np.nan).reshape(shape),
-                        ok.reshape(shape))
-        rs_safe = np.where(finite, rs, 0.0)
-        u = rs_safe.copy()
-        reachable = finite & (rs_safe <= self._rs_max)
-        if K1 < 0:
-            # Newton from r_s approaches the root monotonically from below, but could cross the fold on
-            # rounding near the limit; keep iterates on the monotonic branch.
-            u = np.minimum(u, self._r_fold)
-        active = reachable.copy()
-        for _ in range(_UNDISTORT_MAX_ITER):
-            if not active.any():
-                break
-            ua = u[active]
-            resid = ua + K1 * ua ** 3 - rs_safe[active]
-            deriv = 1.0 + 3.0 * K1 * ua * ua
-            step = resid / np.where(deriv > 1e-12, deriv, 1e-12)
-            ua = ua - step
-            if K1 < 0:
-                ua = np.minimum(ua, self._r_fold)
-            u[active] = ua
-            done = np.abs(step) < 1e-12 * np.maximum(1.0, ua)
-            idx = np.flatnonzero(active)
-            active[idx[done]] = False
-        resid = np.abs(u + K1 * u ** 3 - rs_safe)
-        ok = reachable & (resid < UNDISTORT_TOLERANCE_PX) & (u >= 0)
-        if K1 < 0:
-            ok &= u <= self._r_fold
-        scale = np.where(rs_safe > 0, u / np.where(rs_safe > 0, rs_safe, 1.0), 1.0)
-        xp = np.where(ok, cx + dx * scale, np.nan)
-        yp = np.where(ok, cy + dy * scale, np.nan)
-        return xp.reshape(shape), yp.reshape(shape), ok.reshape(shape)
-
-    def _ideal_in_lens_domain(self, xp, yp):
-        cx, cy = self._center
-        r2 = (_arr(xp) - cx) ** 2 + (_arr(yp) - cy) ** 2
-        return np.isfinite(r2) & (r2 < self._r_fold ** 2)
 
     # ----------------------------------------------------------------- plane <-> ideal
     def zp_of_world(self, xw, yw):
@@ -443,13 +358,13 @@ class CameraModel:
         outside the image: use ``in_image``.
         """
         xp, yp, zp = self.world_to_ideal(xw, yw)
-        in_front = (zp < 0) & self._ideal_in_lens_domain(xp, yp)
+        in_front = (zp < 0) & self._lens.in_domain(xp, yp)
         xs, ys = self.distort(xp, yp)
         return np.where(in_front, xs, np.nan), np.where(in_front, ys, np.nan), in_front
 
     def screen_to_world(self, xs, ys):
         """Screen pixel -> (x_w, y_w, valid) on the sea plane; invalid (NaN) on/above the horizon or off-lens."""
-        xp, yp, ok = self._undistort_ok(xs, ys)
+        xp, yp, ok = self._lens.undistort(xs, ys)
         xw, yw, valid = self.ideal_to_world(xp, yp)
         valid &= ok
         return np.where(valid, xw, np.nan), np.where(valid, yw, np.nan), valid
@@ -493,35 +408,12 @@ class CameraModel:
     # ----------------------------------------------------------------- horizon and heading
     def horizon_y(self, xs):
         """Screen y of the horizon at screen x (NaN where the horizon is vertical or off the lens domain)."""
-        xs = _arr(xs)
-        a, b, c = self._horizon
-        if abs(b) < 1e-9:
-            return np.full(xs.shape, np.nan)
-        cx, cy = self._center
-        K1 = self._K1
-        slope = -a / b
-        xp = xs.copy()
-        for _ in range(60):
-            yp = -(a * xp + c) / b
-            dx = xp - cx
-            dy = yp - cy
-            f = 1.0 + K1 * (dx * dx + dy * dy)
-            resid = cx + dx * f - xs
-            deriv = f + 2.0 * K1 * dx * (dx + dy * slope)
-            step = resid / np.where(np.abs(deriv) > 1e-12, deriv, 1e-12)
-            xp = xp - step
-            if np.all(~np.isfinite(step) | (np.abs(step) < 1e-10)):
-                break
-        yp = -(a * xp + c) / b
-        ok = self._ideal_in_lens_domain(xp, yp)
-        _, ys = self.distort(xp, yp)
-        ok &= np.isfinite(ys) & (np.abs(self.distort(xp, yp)[0] - xs) < 1e-6)
-        return np.where(ok, ys, np.nan)
+        return self._lens.line_y(self._horizon, xs)
 
     def _compute_heading(self) -> float:
         a, b, c = self._horizon
         G = self._Hinv
-        cx, cy = self._center
+        cx, cy = self.center
         if abs(b) < 1e-12:
             # No usable horizon (camera looking down): bearing of the ground under the image centre instead.
             xw, yw, valid = self.ideal_to_world(cx, cy)
@@ -542,7 +434,7 @@ class CameraModel:
 
         Propagate pixel noise with ``J @ cov_px @ J.T`` to get a world covariance in m^2.
         """
-        xp, yp, ok = self._undistort_ok(xs, ys)
+        xp, yp, ok = self._lens.undistort(xs, ys)
         xw, yw, valid = self.ideal_to_world(xp, yp)
         valid &= ok
         G = self._Hinv
@@ -553,22 +445,7 @@ class CameraModel:
         Jh[..., 0, 1] = (G[0, 1] - xw * G[2, 1]) / W
         Jh[..., 1, 0] = (G[1, 0] - yw * G[2, 0]) / W
         Jh[..., 1, 1] = (G[1, 1] - yw * G[2, 1]) / W
-        # screen wrt ideal: f I + 2 K1 d d^T, inverted in closed form
-        cx, cy = self._center
-        dx = xp - cx
-        dy = yp - cy
-        f = 1.0 + self._K1 * (dx * dx + dy * dy)
-        k2 = 2.0 * self._K1
-        a11 = f + k2 * dx * dx
-        a12 = k2 * dx * dy
-        a22 = f + k2 * dy * dy
-        det = a11 * a22 - a12 * a12
-        Jd_inv = np.empty_like(Jh)
-        Jd_inv[..., 0, 0] = a22 / det
-        Jd_inv[..., 0, 1] = -a12 / det
-        Jd_inv[..., 1, 0] = -a12 / det
-        Jd_inv[..., 1, 1] = a11 / det
-        J = Jh @ Jd_inv
+        J = Jh @ self._lens.undistort_jacobian(xp, yp)
         return np.where(valid[..., None, None], J, np.nan)
 
     # ----------------------------------------------------------------- pinhole geometry and the tide
@@ -585,14 +462,12 @@ class CameraModel:
         return self._pinhole
 
     def _decompose(self) -> PinholeGeometry:
-        focal, centre, skew, aspect, valid = pinhole_decomposition(self._H[None], self._center)
-        if not valid[0]:
+        geometry = pinhole_geometry(self._H, self.center)
+        if geometry is None:
             raise CalibrationError("H is not the view of a pinhole camera over the sea plane (no positive focal "
                                    "length makes its columns orthogonal): give the camera height (height_m) "
                                    "or re-run the calibration")
-        return PinholeGeometry(focal_px=float(focal[0]), height_m=float(abs(centre[0, 2])),
-                               nadir_xy=(float(centre[0, 0]), float(centre[0, 1])), skew=float(skew[0]),
-                               aspect=float(aspect[0]), above_water=bool(centre[0, 2] > 0))
+        return geometry
 
     def water_level_scale(self, level_m):
         """The scale k = h / (h - rise) for water ``rise`` = ``level_m`` - ``water_level_m`` higher than at calibration.
@@ -639,7 +514,7 @@ class CameraModel:
         geometry = self.pinhole()
         nx, ny = geometry.nadir_xy
         S = np.array([[k, 0.0, (1.0 - k) * nx], [0.0, k, (1.0 - k) * ny], [0.0, 0.0, 1.0]])
-        return CameraModel(self._H @ S, self._K1, self._center, self._image_size, self._camera_lat,
+        return CameraModel(self._H @ S, self.K1, self.center, self._image_size, self._camera_lat,
                            self._camera_lon, self._box_anchor, water_level_m=level,
                            height_m=self.height_m / k)
 
@@ -647,108 +522,33 @@ class CameraModel:
     def to_params(self) -> dict:
         """The ``camera:`` parameter block: plain Python numbers, ROS-parameter friendly (doubles stay doubles).
 
-        ``heading_deg``, ``horizon_ideal_abc`` (a x_p + b y_p + c = 0, ideal pixels) and ``horizon_y_center``
-        (screen y of the horizon at x_c) are derived from H for people and plots; loaders recompute them.
+        ``heading_deg``, ``horizon_ideal_abc`` and ``horizon_y_center`` are derived from H for people and plots
+        (``vessel_calib.camera_model_params.params_of_camera``); ``from_params`` reads the block back.
         """
-        width, height = self._image_size
-        cx, cy = self._center
-        params: dict[str, Any] = {}
-        if self._camera_lat is not None:
-            params["camera_lat"] = float(self._camera_lat)
-            params["camera_lon"] = float(self._camera_lon)
-        params.update({
-            "image_width": int(width),
-            "image_height": int(height),
-            "H": [float(v) for v in self._H.ravel()],
-            "K1": float(self._K1),
-            "center_x": float(cx),
-            "center_y": float(cy),
-            "box_anchor": float(self._box_anchor),
-        })
-        if math.isfinite(self._water_level_m):
-            params["water_level_m"] = float(self._water_level_m)
-            params["height_m"] = float(self.height_m)
-        # Derived, informational (recomputed from H on load); NaN is left out because ROS YAML cannot hold it.
-        if math.isfinite(self._heading):
-            params["heading_deg"] = float(self._heading)
-        a, b, c = self._horizon
-        params["horizon_ideal_abc"] = [float(a), float(b), float(c)]
-        y_center = float(self.horizon_y(np.array(cx)))
-        if math.isfinite(y_center):
-            params["horizon_y_center"] = y_center
-        return params
+        return params_of_camera(self)
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], where: str = "camera") -> CameraModel:
         """Build from a ``camera:`` parameter block; CalibrationError naming the key for missing/mistyped values.
 
         Derived keys (``heading_deg``, ``horizon_*``) are informational and recomputed from H. ``box_anchor`` is
-        optional: files without it were fitted on box centres (the paper's 0.5).
+        optional: files without it were fitted on box centres (the paper's 0.5). The inverse of ``to_params``.
         """
-        if not isinstance(params, Mapping):
-            raise CalibrationError(
-                f"{where}: expected a mapping of calibration parameters, got {type(params).__name__}")
-        missing = [k for k in PARAM_KEYS_REQUIRED if k not in params]
-        if missing:
-            raise CalibrationError(
-                f"{where}: missing key(s) {', '.join(missing)}; write the file with the calibrate tool")
-
-        def number(key):
-            value = params[key]
-            if not _is_number(value):
-                raise CalibrationError(f"{where}.{key} must be a number, got {value!r} ({type(value).__name__})")
-            if not math.isfinite(float(value)):
-                raise CalibrationError(f"{where}.{key} must be finite, got {value!r}")
-            return float(value)
-
-        def optional(key):
-            """A number that may be NaN (unknown) or absent."""
-            if key not in params:
-                return math.nan
-            value = params[key]
-            if not _is_number(value) or math.isinf(float(value)):
-                raise CalibrationError(f"{where}.{key} must be a number (or .nan: unknown), got {value!r}")
-            return float(value)
-
-        def integer(key):
-            value = number(key)
-            if value != int(value) or value <= 0:
-                raise CalibrationError(f"{where}.{key} must be a positive integer, got {params[key]!r}")
-            return int(value)
-
-        H = params["H"]
-        if isinstance(H, str | bytes) or not hasattr(H, "__len__"):
-            raise CalibrationError(f"{where}.H must be a list of 9 numbers (row-major), got {H!r}")
-        H_flat = list(np.asarray(H, dtype=object).ravel())
-        if len(H_flat) != 9:
-            raise CalibrationError(f"{where}.H must have 9 numbers (3x3 row-major), got {len(H_flat)}")
-        for i, v in enumerate(H_flat):
-            if not _is_number(v):
-                raise CalibrationError(f"{where}.H[{i}] must be a number, got {v!r} ({type(v).__name__})")
+        H = homography_of_params(params, where)
         try:
-            return cls(
-                np.array(H_flat, dtype=float).reshape(3, 3),
-                K1=number("K1"),
-                center=(number("center_x"), number("center_y")),
-                image_size=(integer("image_width"), integer("image_height")),
-                camera_lat=number("camera_lat"),
-                camera_lon=number("camera_lon"),
-                box_anchor=number("box_anchor") if "box_anchor" in params else PAPER_BOX_ANCHOR,
-                water_level_m=optional("water_level_m"),
-                height_m=optional("height_m"),
-            )
+            return cls(H, **camera_arguments_of_params(params, where))
         except CalibrationError as exc:
             raise CalibrationError(f"{where}: {exc}") from None
 
     def __repr__(self) -> str:
-        return (f"CameraModel(H={self._H.tolist()!r}, K1={self._K1!r}, center={self._center!r}, "
+        return (f"CameraModel(H={self._H.tolist()!r}, K1={self.K1!r}, center={self.center!r}, "
                 f"image_size={self._image_size!r}, camera_lat={self._camera_lat!r}, camera_lon={self._camera_lon!r}, "
                 f"box_anchor={self._box_anchor!r}, water_level_m={self._water_level_m!r}, height_m={self._height_m!r})")
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, CameraModel):
             return NotImplemented
-        return (np.array_equal(self._H, other._H) and self._K1 == other._K1 and self._center == other._center
+        return (np.array_equal(self._H, other._H) and self.K1 == other.K1 and self.center == other.center
                 and self._image_size == other._image_size and self._camera_lat == other._camera_lat
                 and self._camera_lon == other._camera_lon and self._box_anchor == other._box_anchor
                 and _same_number(self._water_level_m, other._water_level_m)

@@ -392,16 +392,23 @@ class NodeHealth:
         self._publisher.publish(array)
 
 
+def _declared(node: Node, name: str, default: Any, description: str, bounds=None) -> Any:
+    """The value of a parameter the node's table has declared, else declared here (a node without a table)."""
+    if node.has_parameter(name):
+        return node.get_parameter(name).value
+    return declare_parameter(node, name, default, description, **({"float_range": bounds} if bounds else {}))
+
+
 class NodeState:
     """A node's ``state_file``: resume the core at the first message, snapshot it every ``state_period_s``.
 
-    ``core`` has ``snapshot()`` and ``restore(state)``. Failures to write are counted (``state_not_saved``) and
-    never stop the node.
+    ``core`` has ``snapshot()`` (its state as plain data) and ``restore(state)``. Failures to write are counted
+    (``state_not_saved``) and never stop the node; a file refused as not a snapshot of this node, schema and version
+    is one warning (``state_file_refused``) and a cold start.
     """
 
     def __init__(self, node: Node, health: NodeHealth, kind: str, fingerprint: str, read_only: bool = False):
-        values = {name: declare_parameter(node, name, default, description,
-                                          **({"float_range": bounds} if bounds else {}))
+        values = {name: _declared(node, name, default, description, bounds)
                   for name, (default, description, bounds) in STATE_PARAMETERS.items()}
         self._node = node
         self._health = health
@@ -423,12 +430,15 @@ class NodeState:
         if state is not None:
             try:
                 core.restore(state)
-            except (KeyError, TypeError, ValueError, AttributeError) as error:
-                what = f"state file {self.file.path} does not fit this node ({error}): cold start"
+            except (KeyError, TypeError, ValueError, AttributeError, VesselError) as error:
+                what = self.file.refuse(f"it does not fit this node ({error})")
             else:
                 self._health.count("resumed_from_state_file")
                 holds_this_message = self.file.resumed_stamp == stamp
-        self._node.get_logger().info(what)
+        if self.file.refused:
+            self._health.problem("state_file_refused", what)
+        else:
+            self._node.get_logger().info(what)
         return holds_this_message
 
     def save(self, stamp: float, core) -> None:
@@ -452,7 +462,7 @@ class Standby:
 
     def __init__(self, node: Node):
         self._node = node
-        self.active = not bool(declare_parameter(node, "standby", False, STANDBY_DESCRIPTION))
+        self.active = not bool(_declared(node, "standby", False, STANDBY_DESCRIPTION))
         self._promotion_requested = False
         node.add_on_set_parameters_callback(self._on_set_parameters)
         if not self.active and threading.current_thread() is threading.main_thread():

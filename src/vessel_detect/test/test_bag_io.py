@@ -2,14 +2,15 @@
 
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_common.errors import DataError
 from vessel_detect import bag_io
-from vessel_fixtures import detect_synthetic as synthetic
 
 
 def test_sec_to_ns_keeps_millisecond_stamps_exact():
@@ -257,8 +258,10 @@ def test_a_writer_killed_without_closing_leaves_a_bag_that_recovers_to_its_last_
     import sys
 
     bag = tmp_path / "recording"
+    fixtures = str(Path(synthetic.__file__).parents[1])  # test/, where vessel_fixtures is (no package installs it)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [fixtures, os.environ.get("PYTHONPATH")])))
     done = subprocess.run([sys.executable, "-c", _KILLED_WRITER, str(bag)], capture_output=True, text=True,
-                          timeout=60)
+                          timeout=60, env=env)
     assert done.returncode == 9, done.stderr
     assert not (bag / "metadata.yaml").exists()
     with pytest.raises(DataError):
@@ -317,3 +320,102 @@ def test_recover_to_an_existing_folder_needs_overwrite_and_never_deletes_the_dam
     bag_io.recover_bag(bag, fresh)
     with bag_io.BagReader(fresh) as reader:
         assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3
+
+
+def _bag_of_chunks(path, frames=36, per_chunk=6):
+    """A bag of ``frames`` images, ``per_chunk`` to a chunk (a recorder flushing), and the MCAP chunk indexes."""
+    from mcap.reader import make_reader
+
+    with bag_io.BagWriter(path) as writer:
+        writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+        for k in range(frames):
+            writer.write(bag_io.DEFAULT_IMAGE_TOPIC,
+                         bag_io.compressed_image(1_601_494_000_000_000_000 + k * 40_000_000, synthetic.frame_jpeg(k)))
+            if (k + 1) % per_chunk == 0:
+                writer.flush()
+    with bag_io.mcap_file_of(path).open("rb") as stream:
+        return sorted(make_reader(stream).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+
+
+def _flip_bytes_inside(file, chunk, count=8):
+    """Change ``count`` bytes in the middle of a chunk's compressed records (what a bad disk or copy does)."""
+    data = bytearray(file.read_bytes())
+    records_start = chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len(chunk.compression) + 8
+    middle = records_start + chunk.compressed_size // 2
+    data[middle:middle + count] = bytes(b ^ 0x5A for b in data[middle:middle + count])
+    file.write_bytes(bytes(data))
+
+
+def test_every_chunk_carries_the_crc_of_its_content(tmp_path):
+    """The rosbags writer leaves chunk CRCs 0 ("not computed"): no reader could tell changed bytes from good ones."""
+    import zlib
+
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader, get_chunk_data_stream
+
+    _bag_of_chunks(tmp_path / "bag")
+    with bag_io.mcap_file_of(tmp_path / "bag").open("rb") as stream:
+        chunks = [r for r in StreamReader(stream, emit_chunks=True).records if isinstance(r, Chunk)]
+    assert len(chunks) == 6
+    for chunk in chunks:
+        content, _ = get_chunk_data_stream(chunk)
+        assert chunk.uncompressed_crc != 0 and chunk.uncompressed_crc == zlib.crc32(content.read(10**9))
+    assert len(list(bag_io.iter_mcap(tmp_path / "bag"))) == 36  # the mcap library checks them and agrees
+
+
+def test_a_corrupt_chunk_is_named_its_frames_counted_lost_and_the_other_chunks_played(tmp_path, caplog):
+    """Random bytes in a chunk went unnoticed: the camera played 36/36 frames, some of them not the recorded ones."""
+    path = tmp_path / "bag"
+    chunks = _bag_of_chunks(path)
+    _flip_bytes_inside(bag_io.mcap_file_of(path), chunks[2])
+    kept = [synthetic.frame_jpeg(k) for k in range(36) if k // 6 != 2]
+    lines = []
+    with bag_io.BagReader(path, on_damage=lines.append) as reader:
+        assert [data for _, data in reader.images()] == kept
+        assert [data for _, data in reader.images()] == kept  # a second pass (a loop): named once
+        assert reader.lost_messages == {bag_io.DEFAULT_IMAGE_TOPIC: 6}
+    assert len(lines) == 1 and lines == [reader.damage], lines
+    assert lines[0].startswith(f"bag {path}: chunk 3 of 6 in bag.mcap (bytes {chunks[2].chunk_start_offset}-")
+    assert f"its 6 messages are lost ({bag_io.DEFAULT_IMAGE_TOPIC} 6); the other chunks are read" in lines[0]
+    with caplog.at_level("WARNING", logger="vessel_detect.bag_io"), bag_io.BagReader(path) as reader:
+        assert len(list(reader.messages())) == 30  # without a callback: one warning on the module's logger
+    assert [r.getMessage() for r in caplog.records] == lines
+    with pytest.raises(DataError, match="damaged"):
+        list(bag_io.iter_mcap(path))  # the independent reader sees it too
+    salvaged = bag_io.SalvagedBagReader(path)  # what a bag without its index plays
+    assert [m.cdr for m in salvaged.messages()] == [m.cdr for m in bag_io.BagReader(path).messages()]
+    assert f"chunk at byte {chunks[2].chunk_start_offset}" in salvaged.damage and "6 messages" in salvaged.damage
+    salvage = bag_io.recover_bag(path)
+    assert not salvage.complete and salvage.lost == {bag_io.DEFAULT_IMAGE_TOPIC: 6}
+    with bag_io.BagReader(path) as reader:
+        assert [data for _, data in reader.images()] == kept and reader.damage == ""
+
+
+def test_a_bag_whose_only_chunk_is_corrupt_is_refused_as_damaged(tmp_path):
+    path = tmp_path / "bag"
+    chunks = _bag_of_chunks(path, frames=6)
+    _flip_bytes_inside(bag_io.mcap_file_of(path), chunks[0])
+    with bag_io.BagReader(path, on_damage=lambda line: None) as reader:
+        with pytest.raises(DataError, match=r"is damaged .*every chunk with these messages is damaged.*chunk 1 of 1"):
+            next(reader.images())
+
+
+def test_recover_in_place_never_replaces_an_earlier_damaged_file(tmp_path):
+    """A second `bag recover BAG` moved the bag's file over the first recovery's BAG.damaged.mcap."""
+    bag = tmp_path / "recording"
+    synthetic.write_bag(bag, frames=3)
+    first = bag_io.mcap_file_of(bag).read_bytes()
+    bag_io.recover_bag(bag)
+    assert (tmp_path / "recording.damaged.mcap").read_bytes() == first
+    second = bag_io.mcap_file_of(bag).read_bytes()
+    salvage = bag_io.recover_bag(bag)
+    assert salvage.file == tmp_path / "recording.damaged.1.mcap" and salvage.file.read_bytes() == second
+    assert (tmp_path / "recording.damaged.mcap").read_bytes() == first  # the first one is kept
+    bag_io.recover_bag(bag)
+    assert (tmp_path / "recording.damaged.2.mcap").is_file()
+    with bag_io.BagReader(bag) as reader:
+        assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3
+    (bag / "notes.txt").write_text("mine\n")  # not part of the bag: recovering in place would delete it
+    with pytest.raises(DataError, match=r"holds other files than its bag \(notes.txt\).*--out NEW"):
+        bag_io.recover_bag(bag)
+    assert (bag / "notes.txt").read_text() == "mine\n" and not (tmp_path / "recording.damaged.3.mcap").exists()

@@ -8,9 +8,9 @@ import time
 from pathlib import Path
 
 import pytest
+from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_detect import bag_io
-from vessel_fixtures import detect_synthetic as synthetic
 
 pytestmark = pytest.mark.ros
 
@@ -354,3 +354,46 @@ def _with_context(init, context):
         init(self, *args, **kwargs)
 
     return wrapped
+
+
+def test_ros2_param_set_on_a_running_camera(tmp_path, monkeypatch, ros_env):
+    """``ros2 param set``: a live change takes effect, a bad value and a read-only change are refused with a reason.
+
+    Never accepted and ignored: an audit found `rate` and `source` changes answered "successful" while nothing changed.
+    """
+    from rclpy.parameter import Parameter
+
+    from vessel_common.node_support import wait_for
+    from vessel_detect.camera_node import CameraNode, ManagedCameraNode
+
+    synthetic.write_bag(tmp_path / "bag", frames=3, frame_step_s=60.0, with_fixes=False)
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["camera", "--ros-args", "-p", f"source:={tmp_path / 'bag'}", "-p",
+                                      "wait_for_subscribers:=0", "-p", "end_linger_s:=0.0"])
+    monkeypatch.setattr(rclpy.node.Node, "__init__", _with_context(rclpy.node.Node.__init__, context))
+    node = CameraNode()
+    try:
+        assert wait_for(lambda: node.stats.sent >= 1, 20.0)
+        # At 1x the next frame is a minute away; at 600x the two minutes left take 0.2 s.
+        assert node.set_parameters([Parameter("rate", value=600.0)])[0].successful
+        assert node.replay.schedule.rate == 600.0 and node.get_parameter("rate").value == 600.0
+        assert wait_for(lambda: node.finished, 20.0), "the replay kept the old rate"
+        assert node.stats.sent == 3 and node.stats.late == 0
+
+        refused = node.set_parameters([Parameter("rate", value=-1.0)])[0]
+        assert not refused.successful and "rate" in refused.reason and "range" in refused.reason
+        assert node.params["rate"] == 600.0 and node.replay.schedule.rate == 600.0
+        refused = node.set_parameters([Parameter("source", value="/etc/passwd")])[0]
+        assert not refused.successful and "read-only" in refused.reason
+        assert node.get_parameter("source").value == str(tmp_path / "bag") == node.params["source"]
+        assert "restart the node with -p source:=VALUE" in node.describe_parameter("source").additional_constraints
+    finally:
+        node.close()
+        node.destroy_node()
+    managed = ManagedCameraNode()  # unconfigured: the change is what configure will use
+    try:
+        assert managed.set_parameters([Parameter("rate", value=8.0)])[0].successful and managed.params["rate"] == 8.0
+        assert not managed.set_parameters([Parameter("loop", value=True)])[0].successful
+    finally:
+        managed.destroy_node()
+        rclpy.try_shutdown(context=context)

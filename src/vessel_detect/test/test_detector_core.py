@@ -6,6 +6,7 @@ and tiles, masks, and the real YOLOX-Nano on a real challenge frame.
 
 import numpy as np
 import pytest
+from vessel_fixtures.onnx_synthetic import write_constant_output_model
 
 from vessel_common.errors import ModelError, VesselError
 from vessel_detect.decoders import grid_point_count
@@ -18,7 +19,6 @@ from vessel_detect.detector import (
     letterbox,
 )
 from vessel_detect.detector_params import build_detector, default_values
-from vessel_fixtures.onnx_synthetic import write_constant_output_model
 
 POINTS = grid_point_count((416, 416))
 BOAT = 8
@@ -136,58 +136,6 @@ def test_band_and_tiles_follow_the_horizon_and_scale_with_the_frame(tmp_path):
     assert len(VesselDetector(model, DetectorConfig(mode="full"), 400.0).windows((1280, 720))) == 1
 
 
-def test_the_far_strip_needs_band_mode_and_a_model_of_free_input_size(tmp_path):
-    fixed = _model(tmp_path, np.zeros((1, POINTS, 85), np.float32))
-    assert fixed.free_input_size is False
-    with pytest.raises(ModelError, match="far_scale 2 runs .* fixes its input at 416x416: set far_scale 0"):
-        VesselDetector(fixed, DetectorConfig(mode="band", far_scale=2.0), 400.0)
-    with pytest.raises(VesselError, match="far_scale works in mode band only"):
-        VesselDetector(fixed, DetectorConfig(mode="tiled", far_scale=2.0), 400.0)
-    for value in (0.5, float("nan"), 9.0):
-        with pytest.raises(VesselError, match="far_scale must be 0"):
-            DetectorConfig(mode="band", far_scale=value).validate()
-    with pytest.raises(ModelError, match="band_scale 0.75 runs the network at its own input size.*set band_scale 0"):
-        VesselDetector(fixed, DetectorConfig(mode="band", band_scale=0.75), 400.0)
-    with pytest.raises(VesselError, match="band_scale must be 0"):
-        DetectorConfig(mode="band", band_scale=0.1).validate()
-
-
-def test_a_far_strip_box_is_no_likelier_the_vessel_than_the_band_box_of_the_same_boat():
-    from vessel_detect.detector import cap_far_p_target
-    from vessel_detect.tiling import WindowDetections
-
-    band_boat, other_boat, strip_only = [100, 400, 120, 410], [500, 400, 530, 412], [900, 405, 910, 410]
-    candidates = WindowDetections(
-        np.array([band_boat, other_boat, band_boat, strip_only], float), np.full(4, 0.5), np.zeros(4, np.int64),
-        np.array([0, 0, 1, 1]), np.zeros((4, 4), bool), np.array([0.05, 0.9, 0.8, 0.6]),
-    )
-    merged = candidates.take(np.array([2, 1, 3]))
-    capped = cap_far_p_target(merged, candidates, far_window=1)
-    assert capped.target_scores.tolist() == [0.05, 0.9, 0.6]  # capped; a band box as it was; no band box: its own
-    assert merged.target_scores.tolist() == [0.8, 0.9, 0.6]  # the input is left as it was
-    for value, message in (("max", "far_p_target 'max' unknown: use one of min, strip"),
-                           (-0.1, "target_elsewhere_weight must be >= 0"), (float("nan"), "target_elsewhere_weight")):
-        key = "far_p_target" if isinstance(value, str) else "target_elsewhere_weight"
-        with pytest.raises(VesselError, match=message):
-            DetectorConfig(mode="band", **{key: value}).validate()
-
-
-def test_the_boxes_of_a_frame_share_one_vessel_of_interest():
-    from vessel_detect.detector import share_p_target
-
-    boxes = np.array([[0, 0, 10, 10]] * 4, float)
-    detections = Detections(boxes, np.full(4, 0.5), np.zeros(4, np.int64), ["vessel"],
-                            np.array([0.05, 0.002, 0.003, np.nan]))
-    shared = share_p_target(detections, 0.1).p_target
-    assert np.allclose(shared[:3], np.array([0.05, 0.002, 0.003]) / 0.155)
-    assert np.isnan(shared[3])  # unknown stays unknown
-    assert shared[0] > 0.3 > detections.p_target[0]  # far likelier than the others: it names the vessel
-    near = share_p_target(Detections(boxes[:2], np.full(2, 0.5), np.zeros(2, np.int64), ["vessel"],
-                                     np.array([0.9, 0.01])), 0.1).p_target
-    assert near[0] == pytest.approx(0.9 / 1.01)
-    assert np.array_equal(share_p_target(Detections.empty(["vessel"]), 0.1).p_target, np.zeros(0))
-
-
 def test_the_usual_input_size_of_a_free_size_model_comes_from_its_metadata():
     from types import SimpleNamespace
 
@@ -248,8 +196,8 @@ def test_detect_rejects_non_images(tmp_path):
 def test_real_model_finds_the_vessel_on_a_real_frame_and_not_the_post(model_path, data_dir):
     import cv2
 
-    from vessel_tools.calib.dataset import Dataset
     from vessel_detect.box_ops import box_iou
+    from vessel_tools.calib.dataset import Dataset
 
     dataset = Dataset(data_dir)
     values = default_values()

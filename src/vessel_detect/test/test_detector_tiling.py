@@ -158,16 +158,3 @@ def test_a_boat_across_three_tiles_is_joined_transitively():
     assert len(merged) == 1
     np.testing.assert_allclose(merged.boxes_xyxy[0], [200, 100, 800, 152])
     assert not merged.cut[0, [LEFT, RIGHT, BOTTOM]].any()
-
-
-def test_boxes_of_a_preferred_window_win_over_better_scored_boxes_of_the_same_boat():
-    # The zoomed far strip (window 1, priority 0) and the band (window 0) both see one boat; the band's box
-    # scores higher but the strip's is kept. Without priorities the score decides.
-    windows = [Window(0, 360, 1280, 720, 1.0), Window(0, 380, 1280, 440, 2.0, (False, True, False, True))]
-    dets = _dets([
-        ([600, 400, 630, 420], 0.9, 0, [0, 0, 0, 0]),
-        ([601, 401, 631, 421], 0.6, 1, [0, 0, 0, 0]),
-    ])
-    kept = merge_windows(dets, windows, 0.5, priorities=[1, 0])
-    assert len(kept) == 1 and kept.window_index[0] == 1
-    assert merge_windows(dets, windows, 0.5).window_index.tolist() == [0]

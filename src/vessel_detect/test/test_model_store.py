@@ -1,7 +1,10 @@
-"""Finding, downloading and verifying the model: missing files, checksum mismatches, file:// downloads."""
+"""Finding, downloading and verifying the model: missing files, checksum mismatches, https-only checked downloads."""
 
 import hashlib
+import io
 import os
+import urllib.error
+import urllib.request
 
 import pytest
 
@@ -17,6 +20,31 @@ CONTENT_SHA = hashlib.sha256(CONTENT).hexdigest()
 def no_env(monkeypatch):
     monkeypatch.delenv(model_store.MODEL_ENV, raising=False)
     monkeypatch.delenv(model_store.CACHE_ENV, raising=False)
+
+
+class Served:
+    """The network as ``model_store`` reaches it (``_open_url``): ``files`` URL -> bytes; ``fetched``: URLs asked."""
+
+    def __init__(self):
+        self.files: dict[str, bytes] = {}
+        self.fetched: list[str] = []
+
+    def open(self, url, timeout_s):
+        self.fetched.append(url)
+        if url not in self.files:
+            raise urllib.error.URLError("404 Not Found")
+        return io.BytesIO(self.files[url])
+
+
+@pytest.fixture
+def served(monkeypatch):
+    network = Served()
+    monkeypatch.setattr(model_store, "_open_url", network.open, raising=False)
+    monkeypatch.setattr(urllib.request, "urlopen", lambda url, timeout=None: network.open(url, timeout))  # no network
+    return network
+
+
+URL = "https://models.example.org/v1/model.onnx"
 
 
 def test_explicit_path_with_matching_checksum(tmp_path):
@@ -53,46 +81,96 @@ def test_env_variable_is_used(tmp_path, monkeypatch):
         resolve_model(ModelSpec())
 
 
-def test_file_url_download_into_the_cache_verified(tmp_path):
-    source = tmp_path / "remote" / "model.onnx"
-    source.parent.mkdir()
-    source.write_bytes(CONTENT)
+def test_https_download_into_the_cache_verified(tmp_path, served):
+    served.files[URL] = CONTENT
     cache = tmp_path / "cache"
-    spec = ModelSpec(url=source.as_uri(), sha256=CONTENT_SHA)
+    spec = ModelSpec(url=URL, sha256=CONTENT_SHA)
     path = resolve_model(spec, cache_dir=cache, search_shared=False)
     assert path == cache / "model.onnx" and path.read_bytes() == CONTENT
-    source.unlink()  # second time: from the cache, no download
-    assert resolve_model(spec, cache_dir=cache, search_shared=False) == path
+    del served.files[URL]  # second time: from the cache, no download
+    assert resolve_model(spec, cache_dir=cache, search_shared=False) == path and served.fetched == [URL]
 
 
-def test_a_download_with_the_wrong_checksum_leaves_nothing_in_the_cache(tmp_path):
-    source = tmp_path / "model.onnx"
-    source.write_bytes(CONTENT)
+def test_a_download_with_the_wrong_checksum_leaves_nothing_in_the_cache(tmp_path, served):
+    served.files[URL] = CONTENT
     cache = tmp_path / "cache"
-    spec = ModelSpec(url=source.as_uri(), sha256="0" * 64)
-    with pytest.raises(ModelError, match="0{64}"):
+    spec = ModelSpec(url=URL, sha256="0" * 64)
+    with pytest.raises(ModelError, match="0{64}") as info:
         resolve_model(spec, cache_dir=cache, search_shared=False)
     assert not any(cache.iterdir())
+    assert f"to {cache / 'model.onnx'}" in str(info.value)  # the hint names the cache in use
 
 
-def test_a_corrupt_cached_file_is_downloaded_again(tmp_path):
-    source = tmp_path / "model.onnx"
-    source.write_bytes(CONTENT)
+def test_a_corrupt_cached_file_is_downloaded_again(tmp_path, served):
+    served.files[URL] = CONTENT
     cache = tmp_path / "cache"
     cache.mkdir()
     (cache / "model.onnx").write_bytes(b"half a file")
-    path = resolve_model(ModelSpec(url=source.as_uri(), sha256=CONTENT_SHA), cache_dir=cache, search_shared=False)
+    path = resolve_model(ModelSpec(url=URL, sha256=CONTENT_SHA), cache_dir=cache, search_shared=False)
     assert path.read_bytes() == CONTENT
 
 
-def test_unreachable_url_and_disabled_download_say_how_to_get_the_model(tmp_path):
-    spec = ModelSpec(url=(tmp_path / "absent.onnx").as_uri(), sha256=CONTENT_SHA)
+def test_unreachable_url_and_disabled_download_say_how_to_get_the_model_into_the_given_cache(tmp_path, served):
+    spec = ModelSpec(url=URL, sha256=CONTENT_SHA)
+    cache = tmp_path / "cache"
     with pytest.raises(ModelError, match="cannot download") as info:
-        resolve_model(spec, cache_dir=tmp_path / "cache", search_shared=False)
+        resolve_model(spec, cache_dir=cache, search_shared=False)
     assert CONTENT_SHA in str(info.value)
-    with pytest.raises(ModelError, match="downloads are disabled"):
-        resolve_model(spec, cache_dir=tmp_path / "cache", allow_download=False, search_shared=False)
-    assert not list((tmp_path / "cache").glob("*.part"))
+    with pytest.raises(ModelError, match="downloads are disabled") as disabled:
+        resolve_model(spec, cache_dir=cache, allow_download=False, search_shared=False)
+    assert not list(cache.glob("*.part"))
+    for error in (info.value, disabled.value):
+        assert f"download {URL} (sha256 {CONTENT_SHA}) to {cache / 'model.onnx'}" in str(error)
+        assert str(model_store.default_cache_dir()) not in str(error)  # not ~/.cache when another cache is given
+
+
+@pytest.mark.parametrize("url, sha256, refusal", [
+    ("http://models.example.org/model.onnx", CONTENT_SHA, "is not https: models are downloaded only over https"),
+    ("ftp://models.example.org/model.onnx", CONTENT_SHA, "is not https"),
+    (URL, "", "is given without model_sha256: a downloaded model is used only when its checksum is known; give "
+              "model_sha256:=<sha256 of the file>, or use model_path for a local file"),
+    ("http://models.example.org/model.onnx", "", "is not https"),
+    ("file:///srv/models/model.onnx", CONTENT_SHA, "is a local file: use model_path for a local file "
+                                                   "(model_path:=/srv/models/model.onnx"),
+    (URL, "not-a-checksum", "model_sha256 'not-a-checksum' is not a sha256 (64 hex digits): give "
+                            "model_sha256:=<sha256 of the file>"),
+], ids=["http", "ftp", "https-without-sha256", "http-without-sha256", "file-url", "not-a-sha256"])
+def test_a_download_that_cannot_be_checked_is_refused_before_anything_is_fetched(tmp_path, served, url, sha256,
+                                                                                  refusal):
+    """A model_url without model_sha256 was downloaded over plain HTTP (or file://) and run with no check."""
+    served.files[url] = CONTENT
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    (cache / "model.onnx").write_bytes(b"whatever an earlier download left")  # not used unchecked either
+    with pytest.raises(ModelError) as info:
+        resolve_model(ModelSpec(url=url, sha256=sha256), cache_dir=cache, search_shared=False)
+    assert str(info.value).startswith(f"model_url {url} " if "model_sha256 '" not in refusal else "model_sha256")
+    assert refusal in str(info.value) and "\n" not in str(info.value)
+    assert served.fetched == []
+    with pytest.raises(ModelError, match="not https|without model_sha256|local file|not a sha256"):
+        model_store.download(url, cache / "direct.onnx", ModelSpec(url=url, sha256=sha256))
+    assert served.fetched == [] and sorted(p.name for p in cache.iterdir()) == ["model.onnx"]
+
+
+def test_the_default_model_is_downloaded_with_its_built_in_checksum(tmp_path, served):
+    served.files[model_store.DEFAULT_MODEL_URL] = b"not the model"
+    cache = tmp_path / "cache"
+    for spec in (ModelSpec(), ModelSpec(url=model_store.DEFAULT_MODEL_URL)):
+        assert spec.expected_sha256 == model_store.DEFAULT_MODEL_SHA256
+        model_store.check_download_source(spec)  # https and a known checksum: allowed
+        with pytest.raises(ModelError, match=model_store.DEFAULT_MODEL_SHA256) as info:
+            resolve_model(spec, cache_dir=cache, search_shared=False)
+        assert f"to {cache / 'yolox_nano.onnx'}" in str(info.value)
+    assert served.fetched == [model_store.DEFAULT_MODEL_URL] * 2 and not any(cache.iterdir())
+
+
+def test_a_redirect_away_from_https_is_refused():
+    handler = model_store._HttpsOnlyRedirects()
+    request = urllib.request.Request(URL)
+    with pytest.raises(urllib.error.URLError, match="not https"):
+        handler.redirect_request(request, None, 302, "Found", {}, "http://mirror.example.org/model.onnx")
+    assert handler.redirect_request(request, None, 302, "Found", {}, "https://cdn.example.org/m.onnx").full_url == (
+        "https://cdn.example.org/m.onnx")
 
 
 def test_default_model_spec():

@@ -154,3 +154,34 @@ def test_an_output_that_exists_or_cannot_be_made_is_one_error_line_and_nothing_i
         assert run.stderr.startswith("error: ") and message in run.stderr and "Traceback" not in run.stderr, \
             run.stderr[-2000:]
     assert (existing / "kept.mcap").read_bytes() == b"kept" and in_the_way.read_text() == "kept\n"
+
+
+def test_ros2_param_set_on_a_recorder_is_refused_with_the_reason(tmp_path, monkeypatch, ros_env):
+    """Every recorder parameter is read-only (the bag, its topics and its writer are set up at start).
+
+    A change is refused, saying so, where it used to be answered "successful" and ignored.
+    """
+    from rclpy.parameter import Parameter
+
+    from vessel_detect.recorder_node import RecorderNode
+
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["recorder", "--ros-args", "-p", f"output:={tmp_path / 'bag'}", "-p",
+                                      "topics:=['/vessel/fix']"])
+    node_init = rclpy.node.Node.__init__
+    monkeypatch.setattr(rclpy.node.Node, "__init__",
+                        lambda self, name, **kw: node_init(self, name, context=context, **kw))
+    node = RecorderNode()
+    try:
+        for name, value in (("output", str(tmp_path / "other")), ("queue_depth", 5), ("flush_period_s", 0.0),
+                            ("topics", ["/vessel/tracks"])):
+            result = node.set_parameters([Parameter(name, value=value)])[0]
+            assert not result.successful and "read-only" in result.reason, name
+            assert f"restart the node with -p {name}:=VALUE" in node.describe_parameter(name).additional_constraints
+        assert node.get_parameter("output").value == str(tmp_path / "bag") and node.depth == 100
+        assert [plan.name for plan in node.plans] == ["/vessel/fix"]
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert (tmp_path / "bag" / "metadata.yaml").is_file()

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_common.errors import DataError
 from vessel_detect import bag_io, sources
-from vessel_fixtures import detect_synthetic as synthetic
 from vessel_detect.sources import AuxMessage, Frame
 
 

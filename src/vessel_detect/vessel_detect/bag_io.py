@@ -1,15 +1,19 @@
 """Read and write rosbag2 folders (MCAP storage) without ROS.
 
 The bags are what `ros2 bag record` makes: a folder with `metadata.yaml` and one MCAP file whose chunks are
-zstd-compressed, messages CDR-serialised with the type definitions embedded, so `ros2 bag info/play`, `rosbags`
-and the `mcap` library all read them. Serialisation uses the `rosbags` Jazzy type store extended with this
-project's `vessel_msgs` types (read from their `.msg` files), so the evaluation can read recorded detections and
-tracks without a ROS install. Damaged or unsuitable bags raise `DataError` naming the file and the fix.
+zstd-compressed and carry the CRC32 of their content, messages CDR-serialised with the type definitions embedded, so
+`ros2 bag info/play`, `rosbags` and the `mcap` library all read them. Serialisation uses the `rosbags` Jazzy type
+store extended with this project's `vessel_msgs` types (read from their `.msg` files), so the evaluation can read
+recorded detections and tracks without a ROS install. Damaged or unsuitable bags raise `DataError` naming the file
+and the fix; a chunk whose content does not match its CRC (bytes changed on a disk or in a copy) is named, its
+messages are counted as lost, and the other chunks are read.
 """
 
 from __future__ import annotations
 
 import functools
+import heapq
+import logging
 import math
 import os
 import shutil
@@ -17,7 +21,7 @@ import struct
 import tempfile
 import time
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +29,7 @@ import numpy as np
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
 from rosbags.rosbag2.errors import ReaderError, WriterError
+from rosbags.rosbag2.storage_mcap import McapReader, msgsrc
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -53,6 +58,10 @@ COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
 BUILD_HINT = "rebuild it with `./vessel bag build` (or `bag_build`)"
 
 _NS_PER_S = 1_000_000_000
+_CHUNK_CRC_OFFSET = 1 + 8 + 8 + 8 + 8
+"""Bytes from the start of an MCAP chunk record to its uncompressed_crc: opcode, record length, message start and
+end time, uncompressed size."""
+_LOG = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -285,6 +294,7 @@ class BagWriter:
         except (WriterError, OSError) as exc:
             self._cleanup()
             raise DataError(f"cannot create bag {self.path}: {exc}") from exc
+        _write_chunk_crcs(writer.storage)
         self._writer = writer
         return self
 
@@ -406,6 +416,27 @@ class BagWriter:
         return sum(self.counts.values())
 
 
+def _write_chunk_crcs(storage: object) -> None:
+    """Make the rosbags MCAP writer fill in each chunk's CRC32, which it leaves 0 ("not computed").
+
+    Without it a reader cannot tell a chunk whose bytes changed (a bad disk, a damaged copy) from a good one and
+    plays whatever the changed bytes decode to. The CRC, of the chunk's uncompressed records as MCAP defines it, is
+    written into the record ``close_chunk`` has just written.
+    """
+    close_chunk = storage.close_chunk
+
+    def close_chunk_with_crc() -> None:
+        start = storage.bio.tell()
+        crc = zlib.crc32(storage.chunk.bio.getbuffer())
+        close_chunk()
+        end = storage.bio.tell()
+        storage.bio.seek(start + _CHUNK_CRC_OFFSET)
+        storage.bio.write(struct.pack("<I", crc))
+        storage.bio.seek(end)
+
+    storage.close_chunk = close_chunk_with_crc
+
+
 def _remove(path: Path) -> None:
     if path.is_dir():
         shutil.rmtree(path)
@@ -475,9 +506,16 @@ class BagReader:
     Opening checks the bag and raises `DataError` for a missing path, a folder that is not a bag, and damaged
     storage (naming the file and what is wrong). Types the bag embeds but the type store lacks (someone else's
     messages) are registered from the bag's own definitions, so every topic decodes.
+
+    A chunk of an indexed MCAP file that cannot be read (its CRC does not match, it does not decompress) is skipped
+    by `messages`: one line names it and the messages lost (`on_damage(line)`, by default a warning on the
+    `vessel_detect.bag_io` logger), `lost_messages` counts them by topic, and the other chunks are read.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, on_damage: Callable[[str], None] | None = None) -> None:
+        self.on_damage = on_damage if on_damage is not None else _LOG.warning
+        self.lost_messages: dict[str, int] = {}  # topic -> messages in chunks that could not be read
+        self._lost_chunks: dict[tuple[str, int], str] = {}  # (file, chunk offset) -> the line that named it
         self.path = Path(path)
         if not self.path.exists():
             raise DataError(f"bag {self.path} does not exist: {BUILD_HINT}, or check the path")
@@ -522,7 +560,7 @@ class BagReader:
         detail = str(exc) or type(exc).__name__
         return DataError(
             f"bag {self.path} is damaged ({self._storage_files()}: {detail}); the file is truncated or corrupt: "
-            f"`./vessel bag recover {self.path} --out NEW` keeps every message up to the damage; else "
+            f"`./vessel bag recover {self.path} --out NEW` keeps every message that can be read; else "
             f"{BUILD_HINT}, or re-record it"
         )
 
@@ -603,11 +641,88 @@ class BagReader:
             conns = [c for t in topics for c in self._connections.get(t, [])]
         if not conns:
             return
+        storages = self._indexed_mcap_storages()
+        lost: list[str] = []  # the damaged chunks met by this read
+        read = 0
         try:
-            for conn, log_time, data in self._reader.messages(connections=conns, start=start_ns, stop=stop_ns):
+            if storages is None:
+                source = self._reader.messages(connections=conns, start=start_ns, stop=stop_ns)
+            else:
+                source = self._chunked_messages(storages, conns, start_ns, stop_ns, lost)
+            for conn, log_time, data in source:
+                read += 1
                 yield BagMessage(conn.topic, conn.msgtype, int(log_time), bytes(data))
         except _DAMAGE_ERRORS as exc:
             raise self._damaged(exc) from exc
+        if lost and not read:  # nothing left to play: as unreadable as a bag that does not open
+            raise self._damaged(ReaderError(f"every chunk with these messages is damaged: {'; '.join(lost)}"))
+
+    @property
+    def damage(self) -> str:
+        """The chunks `messages` has found unreadable so far, one line each ('' : none)."""
+        return "\n".join(self._lost_chunks.values())
+
+    def _indexed_mcap_storages(self) -> list[McapReader] | None:
+        """The bag's MCAP files when every one has a chunk index (read chunk by chunk); else None (rosbags reads)."""
+        storage = self._reader.storage
+        storages = list(getattr(storage, "storages", [storage]))
+        if self._reader.compression_mode == "message" or not all(
+                isinstance(s, McapReader) and s.chunks for s in storages):
+            return None
+        return storages
+
+    def _chunked_messages(self, storages: list[McapReader], connections: list, start: int | None,
+                          stop: int | None, lost: list[str]) -> Iterator[tuple[object, int, bytes]]:
+        """What rosbags' ``messages`` yields, with each chunk read and checked on its own (``_chunk``).
+
+        A damaged chunk's line is added to ``lost``.
+        """
+        for storage in storages:
+            wanted = {(c.topic, c.msgtype): c for c in reversed(connections)}
+            own = {c.id: wanted[c.topic, c.msgtype] for c in storage.connections if (c.topic, c.msgtype) in wanted}
+            channels = {c.id: c for c in storage.connections if c.id in own}
+            chunks = [self._chunk(storage, chunk, channels, start, stop, lost) for chunk in storage.chunks
+                      if (start is None or start <= chunk.message_end_time)
+                      and (stop is None or chunk.message_start_time < stop)
+                      and any(chunk.channel_count.get(cid, 0) for cid in channels)]
+            for timestamp, offset, connection, data in heapq.merge(*chunks):
+                if offset:  # 0: a chunk's start time, before it is read
+                    yield own[connection.id], timestamp, data
+
+    def _chunk(self, storage: McapReader, chunk: object, channels: dict, start: int | None,
+               stop: int | None, lost: list[str]) -> Iterator[tuple]:
+        """One chunk's messages in time order, read when the merge reaches its start time; none if it is damaged."""
+        source = msgsrc(chunk, channels, chunk.message_start_time if start is None else start,
+                        chunk.message_end_time + 1 if stop is None else stop, storage.bio)
+        yield next(source)  # the chunk's start time: nothing is read yet
+        try:
+            messages = list(source)  # the whole chunk is checked before any of it is played
+        except _DAMAGE_ERRORS as exc:
+            lost.append(self._chunk_lost(storage, chunk, exc))
+            return
+        yield from messages
+
+    def _chunk_lost(self, storage: McapReader, chunk: object, exc: BaseException) -> str:
+        """Name a chunk that cannot be read (once) and count its messages as lost; the line that names it."""
+        key = (str(storage.path), chunk.chunk_start_offset)
+        if key in self._lost_chunks:
+            return self._lost_chunks[key]
+        lost: dict[str, int] = {}
+        for cid, count in chunk.channel_count.items():
+            topic = storage.channels[cid].topic if cid in storage.channels else f"channel {cid}"
+            lost[topic] = lost.get(topic, 0) + count
+            self.lost_messages[topic] = self.lost_messages.get(topic, 0) + count
+        number = storage.chunks.index(chunk) + 1
+        detail = str(exc) or type(exc).__name__
+        line = (f"bag {self.path}: chunk {number} of {len(storage.chunks)} in {Path(storage.path).name} (bytes "
+                f"{chunk.chunk_start_offset}-{chunk.chunk_start_offset + chunk.chunk_length}, log times "
+                f"{ns_to_sec(chunk.message_start_time):.3f}-{ns_to_sec(chunk.message_end_time):.3f} s) is damaged "
+                f"({detail}): its {sum(lost.values())} messages are lost ("
+                + ", ".join(f"{topic} {count}" for topic, count in sorted(lost.items()))
+                + "); the other chunks are read")
+        self._lost_chunks[key] = line
+        self.on_damage(line)
+        return line
 
     def decode(self, message: BagMessage) -> object:
         """Deserialise a message into a rosbags object; `DataError` for bytes that do not parse."""
@@ -695,7 +810,7 @@ def iter_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Iterator
     file = mcap_file_of(path)
     try:
         with file.open("rb") as stream:
-            reader = make_reader(stream)
+            reader = make_reader(stream, validate_crcs=True)
             wanted = list(topics) if topics is not None else None
             for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
                 name = schema.name if schema is not None else ""
@@ -706,7 +821,7 @@ def iter_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Iterator
 
 @dataclass
 class Salvage:
-    """What a streaming read recovered from an MCAP file that may have been cut short."""
+    """What a streaming read recovered from an MCAP file that may have been cut short or hold damaged chunks."""
 
     messages: list[BagMessage]
     msgtypes: dict[str, str]          # topic -> message type
@@ -714,61 +829,98 @@ class Salvage:
     size: int
     stopped_at: int | None = None     # byte offset where the readable part ends (None: the whole file read)
     reason: str = ""
+    lost_chunks: list[str] = field(default_factory=list)  # each damaged chunk skipped: where, why, what it held
+    lost: dict[str, int] = field(default_factory=dict)    # topic -> messages in the damaged chunks
+
+    @property
+    def complete(self) -> bool:
+        """Whether every message of the file was recovered (read to its end, no damaged chunk)."""
+        return self.stopped_at is None and not self.lost_chunks
 
     def describe(self) -> str:
-        """One line: how much was read, and where and why it stopped."""
+        """One line: how much was read, the damaged chunks skipped, and where and why it stopped."""
         counts = ", ".join(f"{t} {sum(m.topic == t for m in self.messages)}" for t in sorted(self.msgtypes))
+        skipped = ""
+        if self.lost_chunks:
+            lost = ", ".join(f"{topic} {count}" for topic, count in sorted(self.lost.items())) or "none indexed"
+            skipped = (f"; {len(self.lost_chunks)} damaged chunk(s) skipped, their messages lost ({lost}): "
+                       + "; ".join(self.lost_chunks))
         if self.stopped_at is None:
-            return f"{self.file}: read whole, {len(self.messages)} messages ({counts})"
+            return f"{self.file}: read whole, {len(self.messages)} messages ({counts}){skipped}"
         return (f"{self.file}: readable to byte {self.stopped_at} of {self.size} ({self.reason}); "
-                f"{len(self.messages)} messages recovered ({counts or 'none'}), the rest is lost")
+                f"{len(self.messages)} messages recovered ({counts or 'none'}), the rest is lost{skipped}")
 
 
 def salvage_mcap(path: str | Path) -> Salvage:
     """Every message of an MCAP file up to where it stops being readable (a writer killed, a copy cut short).
 
-    Reads record by record (chunks decompressed as they come) without the summary a killed writer never wrote.
+    Reads record by record (chunks decompressed as they come) without the summary a killed writer never wrote. A
+    chunk whose CRC does not match its content, or that does not decompress, is skipped and named, with the count
+    of its messages from the index records that follow it; the records after it are read on.
     """
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
+    from mcap.records import Channel, Chunk, Message, MessageIndex, Schema
+    from mcap.stream_reader import StreamReader, breakup_chunk
 
     file = mcap_file_of(path)
     size = file.stat().st_size
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
-    messages: list[BagMessage] = []
-    stopped_at, reason = None, ""
+    found: list[tuple[int, int, bytes]] = []  # channel id, log time, data (a channel may be defined only later)
+    damaged: list[tuple[int, str, dict[int, int]]] = []  # chunk offset, why, messages by channel id
+    stopped_at, reason, position, counting = None, "", 0, None
     with file.open("rb") as stream:
-        reader = StreamReader(stream, skip_magic=False)
+        reader = StreamReader(stream, skip_magic=False, emit_chunks=True)
         try:
             for record in reader.records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record.name
-                elif isinstance(record, Channel):
-                    channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
-                elif isinstance(record, Message) and record.channel_id in channels:
-                    topic, msgtype = channels[record.channel_id]
-                    messages.append(BagMessage(topic, msgtype, int(record.log_time), bytes(record.data)))
+                start, position = position, stream.tell()
+                records = [record]
+                if isinstance(record, Chunk):
+                    try:
+                        records, counting = breakup_chunk(record, validate_crc=True), None
+                    except Exception as exc:  # a CRC mismatch, or bytes zstd cannot decompress
+                        counting = {}
+                        damaged.append((start, f"{type(exc).__name__}: {exc}", counting))
+                        continue
+                elif isinstance(record, MessageIndex):  # the index of the chunk before: counts what a damaged one held
+                    if counting is not None:
+                        counting[record.channel_id] = len(record.records)
+                    continue
+                else:
+                    counting = None
+                for item in records:
+                    if isinstance(item, Schema):
+                        schemas[item.id] = item.name
+                    elif isinstance(item, Channel):
+                        channels[item.id] = (item.topic, schemas.get(item.schema_id, ""))
+                    elif isinstance(item, Message):
+                        found.append((item.channel_id, int(item.log_time), bytes(item.data)))
         except Exception as exc:
             stopped_at = stream.tell()
             reason = f"{type(exc).__name__}: {exc}".rstrip(": ") or "cut short"
+    messages = sorted((BagMessage(*channels[cid], log_time, data) for cid, log_time, data in found
+                       if cid in channels), key=lambda m: m.log_time_ns)
     if not schemas and not messages:
         raise DataError(f"{file}: nothing readable ({reason or 'empty'}); the writer died before its first flush")
-    messages.sort(key=lambda m: m.log_time_ns)
-    return Salvage(messages, {t: m for t, m in channels.values()}, file, size, stopped_at, reason)
+    salvage = Salvage(messages, {t: m for t, m in channels.values()}, file, size, stopped_at, reason)
+    for offset, why, counts in damaged:
+        for cid, count in counts.items():
+            topic = channels.get(cid, (f"channel {cid}", ""))[0]
+            salvage.lost[topic] = salvage.lost.get(topic, 0) + count
+        salvage.lost_chunks.append(f"chunk at byte {offset} ({why}): {sum(counts.values())} messages")
+    return salvage
 
 
 class SalvagedBagReader:
     """The readable part of a damaged MCAP bag, read the way ``BagReader`` reads a whole one.
 
-    A bag cut short (a copy interrupted, a recorder killed) still plays what it holds; ``damage`` says what was
-    lost and where.
+    A bag cut short (a copy interrupted, a recorder killed) or with damaged chunks still plays what it holds;
+    ``damage`` says what was lost and where.
     """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.salvage = salvage_mcap(self.path)
-        self.damage = self.salvage.describe() if self.salvage.stopped_at is not None else ""
+        self.damage = "" if self.salvage.complete else self.salvage.describe()
         self._store = typestore()
 
     def close(self) -> None:
@@ -831,8 +983,10 @@ def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: b
     """Rebuild a readable bag (MCAP with its summary, and metadata.yaml) from what ``salvage_mcap`` recovers.
 
     ``out`` None replaces a bag folder in place; the damaged file is kept beside the folder as
-    ``<folder>.damaged.mcap``. An ``out`` that exists is replaced only with ``overwrite``, and never when the
-    damaged bag is inside it (that would delete what is being recovered).
+    ``<folder>.damaged.mcap``, or ``<folder>.damaged.1.mcap``, ``.2``, ... when that name is taken (an earlier
+    recovery's is never replaced), and a folder holding other files than its bag is not recovered in place. An
+    ``out`` that exists is replaced only with ``overwrite``, and never when the damaged bag is inside it (that
+    would delete what is being recovered).
     """
     path = Path(path)
     if out is not None:
@@ -847,9 +1001,11 @@ def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: b
     if out is None:
         if not path.is_dir():
             raise DataError(f"{path}: give --out for a single .mcap file (in place works on a bag folder)")
-        kept = path.parent / f"{path.name}.damaged.mcap"
-        salvage.file.replace(kept)
-        salvage.file = kept
+        others = sorted(p.name for p in path.iterdir() if p != salvage.file and p.name != "metadata.yaml")
+        if others:
+            raise DataError(f"{path} holds other files than its bag ({', '.join(others)}): recovering it in place "
+                            "would delete them; give --out NEW")
+        salvage.file = _keep_aside(salvage.file, path.parent / f"{path.name}.damaged")
         target = path
     with BagWriter(target, overwrite=out is None or overwrite,
                    overwrite_hint="give a new folder, or pass --overwrite to replace it") as writer:
@@ -859,6 +1015,28 @@ def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: b
             writer.write_cdr(message.topic, message.cdr, message.log_time_ns)
         writer.set_custom_data("recovered_from", f"{salvage.file.name}: {salvage.describe()}")
     return salvage
+
+
+def _keep_aside(file: Path, stem: Path) -> Path:
+    """Move ``file`` to ``<stem>.mcap``, else ``<stem>.1.mcap``, ``<stem>.2.mcap``, ...: the first name not taken.
+
+    A hard link claims the name atomically (it fails on an existing file), so no earlier file is ever replaced;
+    where links are not possible, the name is checked and the file renamed.
+    """
+    for number in range(1000):
+        kept = stem.with_name(f"{stem.name}.mcap" if number == 0 else f"{stem.name}.{number}.mcap")
+        try:
+            os.link(file, kept)
+        except FileExistsError:
+            continue
+        except OSError:  # no hard links on this file system
+            if kept.exists():
+                continue
+            file.rename(kept)
+            return kept
+        file.unlink()
+        return kept
+    raise DataError(f"{stem}.mcap and 999 numbered names beside it exist already: move old damaged files away")
 
 
 def bag_info(path: str | Path) -> str:

@@ -7,21 +7,11 @@ Modes (``DetectorConfig.mode``):
 - ``band``: the band below the horizon (from the calibration, with a margin above it for masts and waves),
   letterboxed whole.
 - ``tiled`` (default): overlapping windows of the band shown to the network at ``tile_scales`` network pixels
-  per image pixel (one tiling per scale; optionally only the top ``tile_strip_px`` of the band), plus
-  optionally the whole band in one pass (``global_pass``) for boats too large for a tile. Detections of all
-  windows are merged (see :mod:`vessel_detect.tiling`).
-
-In ``band`` mode a second, zoomed run can cover the strip just below the horizon (``far_scale``), where a boat
-a few hundred metres out is a dozen pixels wide; its boxes come first in the merge. The network then runs at the
-strip's own size, so this needs a model whose input height and width are free (as ``detect train`` exports).
-A zoomed far boat looks like the close-ups of the vessel of interest the model was trained on, whichever boat it is,
-so by default (``far_p_target: min``) a strip box's ``p_target`` is at most that of the band's box of the same boat.
+  per image pixel (one tiling per scale), plus optionally the whole band in one pass (``global_pass``) for boats
+  too large for a tile. Detections of all windows are merged (see :mod:`vessel_detect.tiling`).
 
 ``size_prior`` (a ``SizePrior``, off by default) lowers the ``p_target`` of a box much larger than the vessel of
 interest would be at the depth its position gives (``vessel_detect.size_prior``).
-
-``target_elsewhere_weight`` (0: off) divides each box's ``p_target`` by the frame's sum plus this weight: there is
-at most one vessel of interest, so a small ``p_target`` far above every other box's in its frame still names it.
 
 Then boxes whose bottom lies above the band top (the sky, the far shore) and boxes mostly inside a static
 exclusion mask are dropped. Boxes come back in full-image pixels.
@@ -29,7 +19,6 @@ exclusion mask are dropped. Boxes come back in full-image pixels.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +28,6 @@ import numpy as np
 
 from vessel_common.errors import ModelError, VesselError
 from vessel_detect.appearance_model import rescore_detections
-from vessel_detect.box_ops import box_iou
 from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
 from vessel_detect.image_codec import ImageError
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
@@ -56,12 +44,6 @@ from vessel_detect.tiling import (
 
 LETTERBOX_PAD_VALUE = 114
 MODES = ("full", "band", "tiled")
-BAND_ONLY_OPTIONS = ("band_scale", "far_scale")
-"""Options of ``band`` mode that run the network at their own input size (0: off); no other mode takes them."""
-FAR_P_TARGET = ("min", "strip")
-"""How a far-strip box's p_target is set: the lower of its own and the band's box of the same boat, or its own."""
-FAR_BAND_MATCH_IOU = 0.3
-"""IoU above which a band box is taken for the same boat as a far-strip box."""
 CHALLENGE_HORIZON_Y = 418.0
 """Screen y of the horizon of the challenge camera (1280x720), for when no calibration is at hand."""
 
@@ -162,14 +144,7 @@ class DetectorConfig:
     band_bottom_px: float = 0.0
     tile_scales: tuple[float, ...] = (1.25,)
     tile_overlap_px: int = 96
-    tile_strip_px: float = 0.0
     global_pass: bool = True
-    band_scale: float = 0.0
-    far_scale: float = 0.0
-    far_above_horizon_px: float = 64.0
-    far_rows_px: float = 128.0
-    far_p_target: str = "min"
-    target_elsewhere_weight: float = 0.0
     exclusion_polygons: tuple[str, ...] = DEFAULT_EXCLUSION_POLYGONS
     mask_max_inside: float = 0.5
     cut_edge_tolerance_px: float = 3.0
@@ -188,18 +163,6 @@ class DetectorConfig:
             (len(self.tile_scales) > 0, "tile_scales must hold at least one scale"),
             (all(0.05 <= s <= 8.0 for s in self.tile_scales), "tile_scales must each be in [0.05, 8]"),
             (self.tile_overlap_px >= 0, "tile_overlap_px must be >= 0"),
-            (self.tile_strip_px >= 0, "tile_strip_px must be >= 0 (0: the whole band)"),
-            (self.band_scale == 0.0 or 0.25 <= self.band_scale <= 4.0, "band_scale must be 0 (fit) or in [0.25, 4]"),
-            (self.far_scale == 0.0 or 1.0 <= self.far_scale <= 4.0, "far_scale must be 0 (off) or in [1, 4]"),
-            *((getattr(self, name) == 0.0 or self.mode == "band",
-               f"{name} works in mode band only (mode is '{self.mode}'): set {name} 0 or mode band")
-              for name in BAND_ONLY_OPTIONS),
-            (self.far_above_horizon_px >= 0, "far_above_horizon_px must be >= 0"),
-            (self.far_rows_px >= 8, "far_rows_px must be >= 8"),
-            (self.far_p_target in FAR_P_TARGET,
-             f"far_p_target '{self.far_p_target}' unknown: use one of {', '.join(FAR_P_TARGET)}"),
-            (math.isfinite(self.target_elsewhere_weight) and self.target_elsewhere_weight >= 0,
-             "target_elsewhere_weight must be >= 0 (0: off)"),
             (0.0 <= self.mask_max_inside <= 1.0, "mask_max_inside must be in [0, 1]"),
             (len(self.classes) > 0, "classes must name at least one class (e.g. ['boat'])"),
         ]
@@ -450,27 +413,12 @@ def letterbox(
 class NetworkRun:
     """One network run on a frame.
 
-    ``window`` is the source rectangle; ``fixed_scale`` shows it at ``window.scale`` (tiles and the far strip)
-    instead of fitting it whole; ``input_hw`` is the network input; boxes of runs with a lower ``priority`` are
-    taken first when the runs' detections are merged.
+    ``window`` is the source rectangle; ``fixed_scale`` shows it at ``window.scale`` (the tiles) instead of fitting
+    it whole.
     """
 
     window: Window
     fixed_scale: bool
-    input_hw: tuple[int, int]
-    priority: int = 1
-
-
-def _multiple_of(value: float, step: int) -> int:
-    return max(step, int(math.ceil(value / step - 1e-9)) * step)
-
-
-def _strip_run(top: int, bottom: int, image_wh: tuple[int, int], scale: float, priority: int = 1) -> NetworkRun:
-    """The full-width rows ``[top, bottom)`` shown at ``scale``, the network input sized to them (strides of 32)."""
-    width, height = image_wh
-    input_hw = (_multiple_of((bottom - top) * scale, 32), _multiple_of(width * scale, 32))
-    window = Window(0, top, width, bottom, float(scale), (False, top > 0, False, bottom < height))
-    return NetworkRun(window, True, input_hw, priority)
 
 
 def horizon_band_top(camera_model, image_wh: tuple[int, int] | None = None, samples: int = 65) -> float | None:
@@ -526,14 +474,6 @@ class VesselDetector:
                 f"({', '.join(model.class_names[:12])}); set it to the model's vessel-of-interest class or ''"
             )
         self.target_index = model.class_names.index(self.config.target_class) if self.config.target_class else None
-        for name in BAND_ONLY_OPTIONS:
-            if getattr(self.config, name) > 0 and not model.free_input_size:
-                height, width = model.input_hw
-                raise ModelError(
-                    f"{name} {getattr(self.config, name):g} runs the network at its own input size, but model "
-                    f"{model.path} fixes its input at {width}x{height}: set {name} 0, or use a model exported with "
-                    "a free input height and width (./vessel detect train exports one)"
-                )
         self.mask = ExclusionMask(list(self.config.exclusion_polygons), self.reference_wh)
         self._plans: dict[tuple[int, int], list[NetworkRun]] = {}
         self.appearance = None  # an appearance_model.AppearanceModel rescoring the boxes (set by build_detector)
@@ -570,46 +510,24 @@ class VesselDetector:
             self._plans[key] = self._plan(key)
         return self._plans[key]
 
-    def far_strip(self, image_wh: tuple[int, int]) -> tuple[float, float] | None:
-        """The rows ``(top, bottom)`` of the zoomed far strip in an image of ``image_wh``; None when off."""
-        if self.config.far_scale <= 0 or self.config.mode != "band" or self.horizon_y is None:
-            return None
-        height = image_wh[1]
-        sy = height / self.reference_wh[1]
-        top = max(0.0, (self.horizon_y - self.config.far_above_horizon_px) * sy)
-        bottom = min(float(height), top + self.config.far_rows_px * sy)
-        return (top, bottom) if bottom > top + 1 else None
-
     def _plan(self, image_wh: tuple[int, int]) -> list[NetworkRun]:
         width, height = image_wh
         config = self.config
         net_wh = (self.model.input_hw[1], self.model.input_hw[0])
         if config.mode == "full":
-            return [NetworkRun(_whole_window(0, 0, width, height, net_wh, image_wh), False, self.model.input_hw)]
+            return [NetworkRun(_whole_window(0, 0, width, height, net_wh, image_wh), False)]
         top, bottom = self.band(image_wh)
         itop, ibottom = int(np.floor(top)), int(np.ceil(bottom))
-        if config.mode == "band" and config.band_scale > 0:
-            band_run = _strip_run(itop, ibottom, image_wh, config.band_scale)
-        else:
-            band_run = NetworkRun(_whole_window(0, itop, width, ibottom, net_wh, image_wh), False, self.model.input_hw)
+        band_run = NetworkRun(_whole_window(0, itop, width, ibottom, net_wh, image_wh), False)
         if config.mode == "band":
-            strip = self.far_strip(image_wh)
-            if strip is None:
-                return [band_run]
-            far_run = _strip_run(int(np.floor(strip[0])), int(np.ceil(strip[1])), image_wh, config.far_scale, 0)
-            return [band_run, far_run]
+            return [band_run]
         plan: list[NetworkRun] = []
         if config.global_pass:
             plan.append(band_run)
-        strip_bottom = bottom
-        if config.tile_strip_px > 0:
-            strip_bottom = min(bottom, top + config.tile_strip_px * height / self.reference_wh[1])
         for scale in config.tile_scales:
             plan += [
-                NetworkRun(window, True, self.model.input_hw)
-                for window in tile_windows(
-                    (0, top, width, strip_bottom), image_wh, net_wh, scale, config.tile_overlap_px
-                )
+                NetworkRun(window, True)
+                for window in tile_windows((0, top, width, bottom), image_wh, net_wh, scale, config.tile_overlap_px)
             ]
         return plan
 
@@ -627,10 +545,10 @@ class VesselDetector:
             window = run.window
             windows.append(window)
             crop = image[window.y0 : window.y1, window.x0 : window.x1]
-            tensor, scale = letterbox(crop, run.input_hw, window.scale if run.fixed_scale else None)
+            tensor, scale = letterbox(crop, self.model.input_hw, window.scale if run.fixed_scale else None)
             output = self.model.run(tensor)
             candidates = decode(
-                output, self.model.layout, run.input_hw, self.class_indices,
+                output, self.model.layout, self.model.input_hw, self.class_indices,
                 self.config.score_threshold, self.model.strides, self.target_index,
             )
             if len(candidates) == 0:
@@ -645,14 +563,10 @@ class VesselDetector:
                 candidates.target_scores,
             )
             parts.append(nms_per_window(part, self.config.nms_iou, self.config.class_agnostic_nms))
-        candidates = WindowDetections.concatenate(parts)
-        merged = candidates
+        merged = WindowDetections.concatenate(parts)
         if len(plan) > 1:
-            priorities = [run.priority for run in plan]
-            merged = merge_windows(candidates, windows, self.config.nms_iou, self.config.covered_threshold,
-                                   class_agnostic=self.config.class_agnostic_nms, priorities=priorities)
-            if self.far_strip((width, height)) is not None and self.config.far_p_target == "min":
-                merged = cap_far_p_target(merged, candidates, far_window=int(np.argmin(priorities)))
+            merged = merge_windows(merged, windows, self.config.nms_iou, self.config.covered_threshold,
+                                   class_agnostic=self.config.class_agnostic_nms)
         detections = Detections(merged.boxes_xyxy, merged.scores, merged.class_ids, self.class_names,
                                 merged.target_scores)
         detections = self._filter(detections, (width, height))
@@ -663,8 +577,6 @@ class VesselDetector:
                                             self.appearance_nested_overlap)
         if self.size_prior.enabled and self.size_prior_camera is not None:
             detections = apply_size_prior(detections, self.size_prior, self.size_prior_camera, calibration_scale)
-        if self.config.target_elsewhere_weight > 0:
-            detections = share_p_target(detections, self.config.target_elsewhere_weight)
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 
@@ -682,25 +594,6 @@ class VesselDetector:
         return detections.take(keep)
 
 
-def cap_far_p_target(merged: WindowDetections, candidates: WindowDetections, far_window: int) -> WindowDetections:
-    """Merged detections whose far-strip boxes have at most the ``p_target`` of the band's box of the same boat.
-
-    ``candidates`` are the detections of every run before the merge; a band box is the same boat when its IoU with
-    the strip box exceeds ``FAR_BAND_MATCH_IOU`` (the best ``p_target`` among such boxes counts). A strip box no
-    band box matches keeps its own value: the band may have missed the boat.
-    """
-    from_band = candidates.window_index != far_window
-    from_strip = np.flatnonzero(merged.window_index == far_window)
-    if not from_band.any() or from_strip.size == 0:
-        return merged
-    overlap = box_iou(merged.boxes_xyxy[from_strip], candidates.boxes_xyxy[from_band]) > FAR_BAND_MATCH_IOU
-    band_p = np.where(overlap, candidates.target_scores[from_band][None, :], -np.inf).max(axis=1)
-    capped = merged.take(np.arange(len(merged)))
-    matched = np.isfinite(band_p)
-    capped.target_scores[from_strip[matched]] = np.fmin(capped.target_scores[from_strip[matched]], band_p[matched])
-    return capped
-
-
 def apply_size_prior(detections: Detections, prior: SizePrior, camera,
                      calibration_scale: tuple[float, float] = (1.0, 1.0)) -> Detections:
     """``detections`` with the ``p_target`` of boxes too large for the vessel at their depth lowered (``prior``).
@@ -714,22 +607,6 @@ def apply_size_prior(detections: Detections, prior: SizePrior, camera,
     lowered = detections.take(np.arange(len(detections)))
     lowered.p_target = prior.apply(lowered.p_target, ratios)
     return lowered
-
-
-def share_p_target(detections: Detections, elsewhere_weight: float) -> Detections:
-    """``detections`` with each known ``p_target`` divided by the frame's sum plus ``elsewhere_weight``.
-
-    A frame holds at most one vessel of interest, so its boxes' probabilities compete: ``elsewhere_weight`` stands
-    for the vessel being none of them. Unknown (NaN) values stay unknown.
-    """
-    known = np.isfinite(detections.p_target)
-    if not known.any():
-        return detections
-    shared = detections.take(np.arange(len(detections)))
-    total = float(np.sum(shared.p_target[known])) + elsewhere_weight
-    if total > 0:
-        shared.p_target[known] = np.clip(shared.p_target[known] / total, 0.0, 1.0)
-    return shared
 
 
 def annotate(bgr: np.ndarray, detections: Detections, detector: VesselDetector, scale: float = 0.5) -> np.ndarray:

@@ -28,19 +28,17 @@ from collections import deque
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.exceptions import ParameterException
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
 
 from vessel_calib.camera_parameters import declare_camera_model
 from vessel_common.errors import VesselError
+from vessel_common.node_parameters import declare_table
 from vessel_common.node_support import (
     SENSOR_DATA_QOS,
     NodeHealth,
     PhasedLifecycle,
-    declare_parameter,
     image_qos_profile,
     main_for,
     release_publisher,
@@ -48,7 +46,7 @@ from vessel_common.node_support import (
     steady_timer,
 )
 from vessel_detect.detector import Detections, annotate
-from vessel_detect.detector_params import ALL_PARAMS, NODE_NAME, build_detector
+from vessel_detect.detector_params import DETECTOR_PARAMETERS, NODE_NAME, build_detector, detector_config
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
 from vessel_detect.image_queue import ImageQueue, QueuedImage
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
@@ -116,33 +114,18 @@ class _DetectorPhases:
         return f", p_target lowered for boxes over {math.exp(prior.tolerance):.2f}x the vessel's {prior.dimension}"
 
     def _declare(self) -> None:
-        self.values = {}
-        for spec in ALL_PARAMS:
-            kwargs = {}
-            if spec.float_range is not None:
-                kwargs["float_range"] = spec.float_range
-            if spec.int_range is not None:
-                kwargs["int_range"] = spec.int_range
-            try:
-                self.values[spec.name] = declare_parameter(
-                    self, spec.name, spec.default, spec.description, read_only=spec.read_only, **kwargs
-                )
-            except (ParameterException, TypeError, ValueError) as error:
-                raise VesselError(
-                    f"detector parameter '{spec.name}': {error} (expected a value like {spec.default!r})"
-                ) from None
+        self.detector = None
+        self.values = declare_table(self, DETECTOR_PARAMETERS, apply=self._apply_parameters)
         self.camera = declare_camera_model(self)
         values = self.values
         if not (values["subscribe_compressed"] or values["subscribe_raw"]):
             raise VesselError("detector subscribes to nothing: set subscribe_compressed or subscribe_raw to true")
-        self.detector = None
         self.detections_pub = None
         self.annotated_pub = None
         self._image_subscriptions = []
         self._worker = None
         self._decode_ahead_thread = None
         self._queue: ImageQueue | None = None
-        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.health = NodeHealth(self, hardware_id="detector")
         for kind in PROBLEM_KINDS + EVENT_KINDS:
             self.health.count(kind, 0)
@@ -211,25 +194,12 @@ class _DetectorPhases:
         self.detector = None  # the ONNX session and its memory go with it
 
 
-    def _on_set_parameters(self, parameters) -> SetParametersResult:
-        """Thresholds may change while running; everything else is read-only (declared so)."""
-        if self.detector is None:  # not configured yet (managed node): the values apply when it is
-            return SetParametersResult(successful=True)
-        config = self.detector.config
-        updates = {}
-        for parameter in parameters:
-            if parameter.name in ("score_threshold", "nms_iou", "mask_max_inside"):
-                updates[parameter.name] = float(parameter.value)
-        if updates:
-            from dataclasses import replace
-
-            candidate = replace(config, **updates)
-            try:
-                candidate.validate()
-            except VesselError as error:
-                return SetParametersResult(successful=False, reason=str(error))
-            self.detector.config = candidate
-        return SetParametersResult(successful=True)
+    def _apply_parameters(self, values) -> None:
+        """A live change of the thresholds (the table's live rows), checked as at start, used from the next image."""
+        config = detector_config(values)
+        self.values = values
+        if self.detector is not None:  # a managed node not configured yet builds its detector from self.values
+            self.detector.config = config
 
     # ------------------------------------------------------------------------------------------------ input
     def _on_image(self, kind: str, message) -> None:

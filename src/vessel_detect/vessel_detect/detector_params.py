@@ -7,7 +7,6 @@ parameter file, so a figure measured offline is the figure of the running node. 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +14,7 @@ from vessel_calib.camera_model import CameraModel
 from vessel_calib.params import camera_block, node_blocks, read_params_yaml
 from vessel_common.errors import ModelError, VesselError
 from vessel_common.parameter_names import flatten, is_rcl_parameter
+from vessel_common.parameter_table import Param, ParameterTable
 from vessel_common.paths import in_repo
 from vessel_detect.appearance_model import (
     COMBINE_MODES,
@@ -25,6 +25,7 @@ from vessel_detect.appearance_model import (
 )
 from vessel_detect.detector import (
     CHALLENGE_HORIZON_Y,
+    MODES,
     DetectorConfig,
     OnnxModel,
     VesselDetector,
@@ -38,143 +39,106 @@ from vessel_detect.size_prior import DEFAULT_SIZE_MODEL, DIMENSIONS, SizePrior
 NODE_NAME = "detector"
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One parameter: name, default (its type is the parameter's type), description, optional range."""
-
-    name: str
-    default: Any
-    description: str
-    float_range: tuple[float, float] | None = None
-    int_range: tuple[int, int] | None = None
-    read_only: bool = False
-
-
-MODEL_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("model_path", "", "ONNX model file; '' searches $VESSEL_MODEL, ../shared/models, the cache, "
-              "then downloads model_url.", read_only=True),
-    ParamSpec("model_url", "", "URL to download the model from into the cache ('' with no model_path: the "
-              "default YOLOX-Nano's URL).", read_only=True),
-    ParamSpec("model_sha256", "", "Expected sha256 of the model file ('' : the default model's when neither "
-              "model_path nor model_url is set; otherwise not checked).", read_only=True),
-    ParamSpec("model_cache_dir", "", "Download cache ('' : $VESSEL_MODEL_CACHE or "
-              "~/.cache/vessel_tracking/models).", read_only=True),
-    ParamSpec("allow_download", True, "Download model_url when the model is not found locally.",
-              read_only=True),
-    ParamSpec("class_names_file", "", "Class names, one per line in output order ('' : coco_classes.txt or "
-              "classes.txt next to the model, else COCO's for 80-class models).", read_only=True),
-    ParamSpec("layout", "auto", "Output layout: auto (from the output shape), yolox, yolov5 or yolov8.",
-              read_only=True),
-    ParamSpec("intra_op_threads", 2, "onnxruntime intra-op threads (the detector's share of the CPU).",
-              int_range=(1, 64), read_only=True),
+MODEL_PARAMS: tuple[Param, ...] = (
+    Param("model_path", "", "ONNX model file; '' searches $VESSEL_MODEL, ../shared/models, the cache, "
+              "then downloads model_url."),
+    Param("model_url", "", "URL to download the model from into the cache ('' with no model_path: the "
+              "default YOLOX-Nano's URL)."),
+    Param("model_sha256", "", "Expected sha256 of the model file ('' : the default model's when neither "
+              "model_path nor model_url is set; otherwise not checked)."),
+    Param("model_cache_dir", "", "Download cache ('' : $VESSEL_MODEL_CACHE or "
+              "~/.cache/vessel_tracking/models)."),
+    Param("allow_download", True, "Download model_url when the model is not found locally."),
+    Param("class_names_file", "", "Class names, one per line in output order ('' : coco_classes.txt or "
+              "classes.txt next to the model, else COCO's for 80-class models)."),
+    Param("layout", "auto", "Output layout: auto (from the output shape), yolox, yolov5 or yolov8.",
+          choices=("auto", "yolox", "yolov5", "yolov8")),
+    Param("intra_op_threads", 2, "onnxruntime intra-op threads (the detector's share of the CPU).",
+              value_range=(1, 64)),
 )
 
-DETECTION_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("classes", ["boat"], "Class names to detect (others are ignored).", read_only=True),
-    ParamSpec("score_threshold", 0.15, "Minimum confidence (objectness x class score) of a detection; the "
-              "tracker downstream handles the clutter of low values.", float_range=(0.0, 1.0)),
-    ParamSpec("target_class", "", "The model's class of the vessel of interest (e.g. vessel_of_interest): each "
-              "detection also carries its probability as a hypothesis of this class ('' : none).", read_only=True),
-    ParamSpec("class_agnostic_nms", False, "Suppress overlapping boxes whatever their class (a model whose "
-              "classes split one kind of object, such as vessel_of_interest and vessel).", read_only=True),
-    ParamSpec("nms_iou", 0.55, "IoU above which the weaker of two boxes of a class is suppressed.",
-              float_range=(0.01, 1.0)),
-    ParamSpec("mode", "tiled", "full (whole frame), band (the band below the horizon, letterboxed whole) or "
-              "tiled (overlapping windows of the band at tile_scales).", read_only=True),
-    ParamSpec("band_margin_px", 40.0, "Band starts this far above the horizon (masts, waves, calibration "
-              "error), pixels of the calibrated image size.", float_range=(0.0, 2000.0), read_only=True),
-    ParamSpec("band_bottom_px", 0.0, "Band ends at this image row (0: the image bottom).",
-              float_range=(0.0, 20000.0), read_only=True),
-    ParamSpec("tile_scales", [1.25], "Network pixels per image pixel of the tiles (several values: one tiling "
-              "per scale). 1.25 shows a 333x333 window to a 416x416 network.", read_only=True),
-    ParamSpec("tile_overlap_px", 96, "Minimum overlap of neighbouring tiles, image pixels (a boat narrower "
-              "than this is whole in some tile).", int_range=(0, 4096), read_only=True),
-    ParamSpec("tile_strip_px", 0.0, "Tiles cover only this many pixels below the band top (0: the whole "
-              "band); the global pass covers the rest.", float_range=(0.0, 20000.0), read_only=True),
-    ParamSpec("global_pass", True, "Tiled mode: also run the whole band letterboxed once, for boats too "
-              "large for a tile.", read_only=True),
-    ParamSpec("band_scale", 0.0, "Band mode: network pixels per image pixel of the band (0: the band fitted "
-              "into the model's usual input; a smaller value runs faster and shows boats smaller). Needs a model with "
-              "a free input size.", float_range=(0.0, 4.0), read_only=True),
-    ParamSpec("far_scale", 0.0, "Band mode: also run the strip just below the horizon at this many network "
-              "pixels per image pixel, for boats a few pixels tall (0: off; 1-4). Needs a model with a free input "
-              "size, as ./vessel detect train exports.", float_range=(0.0, 4.0), read_only=True),
-    ParamSpec("far_above_horizon_px", 64.0, "The far strip starts this far above the horizon, pixels of the "
-              "calibrated image size.", float_range=(0.0, 2000.0), read_only=True),
-    ParamSpec("far_rows_px", 128.0, "Height of the far strip, pixels of the calibrated image size.",
-              float_range=(8.0, 2000.0), read_only=True),
-    ParamSpec("far_p_target", "min", "With far_scale: a far-strip box's probability of being the vessel of "
-              "interest is min (the lower of its own and the band's box of the same boat: a zoomed far boat looks "
-              "like the vessel's close-ups, whichever boat it is) or strip (its own).", read_only=True),
-    ParamSpec("target_elsewhere_weight", 0.0, "Each box's probability of being the vessel of interest is divided by "
-              "the sum over its frame plus this weight (the vessel being none of the boxes): there is at most one "
-              "vessel of interest per frame, so a box far likelier than the others names it even at a small value "
-              "(0: off, the network's own values).", float_range=(0.0, 100.0), read_only=True),
-    ParamSpec("size_prior.dimension", "none", "A box much larger than the vessel of interest would be at the depth "
+DETECTION_PARAMS: tuple[Param, ...] = (
+    Param("classes", ["boat"], "Class names to detect (others are ignored)."),
+    Param("score_threshold", 0.1, "Minimum confidence (objectness x class score) of a detection; the "
+              "tracker downstream handles the clutter of low values.", value_range=(0.0, 1.0), live=True),
+    Param("target_class", "", "The model's class of the vessel of interest (e.g. vessel_of_interest): each "
+              "detection also carries its probability as a hypothesis of this class ('' : none)."),
+    Param("class_agnostic_nms", False, "Suppress overlapping boxes whatever their class (a model whose "
+              "classes split one kind of object, such as vessel_of_interest and vessel)."),
+    Param("nms_iou", 0.5, "IoU above which the weaker of two boxes of a class is suppressed.",
+              value_range=(0.01, 1.0), live=True),
+    Param("mode", "tiled", "full (whole frame), band (the band below the horizon, letterboxed whole) or "
+              "tiled (overlapping windows of the band at tile_scales).", choices=MODES),
+    Param("band_margin_px", 40.0, "Band starts this far above the horizon (masts, waves, calibration "
+              "error), pixels of the calibrated image size.", value_range=(0.0, 2000.0)),
+    Param("band_bottom_px", 0.0, "Band ends at this image row (0: the image bottom).",
+              value_range=(0.0, 20000.0)),
+    Param("tile_scales", [1.25], "Network pixels per image pixel of the tiles (several values: one tiling "
+              "per scale). 1.25 shows a 333x333 window to a 416x416 network."),
+    Param("tile_overlap_px", 96, "Minimum overlap of neighbouring tiles, image pixels (a boat narrower "
+              "than this is whole in some tile).", value_range=(0, 4096)),
+    Param("global_pass", True, "Tiled mode: also run the whole band letterboxed once, for boats too "
+              "large for a tile."),
+    Param("size_prior.dimension", "none", "A box much larger than the vessel of interest would be at the depth "
               "its position gives (through the calibration and size_prior.model) is less likely the vessel: "
               f"{', '.join(DIMENSIONS)} (which box size is compared). Needs the calibration (camera.* parameters).",
-              read_only=True),
-    ParamSpec("size_prior.tolerance", 0.3, "With size_prior.dimension: sizes up to exp(this) times the vessel's "
-              "expected size change nothing (natural log of the ratio).", float_range=(0.0, 5.0), read_only=True),
-    ParamSpec("size_prior.strength", 10.0, "With size_prior.dimension: log-odds of p_target lowered per unit of "
-              "log size ratio beyond the tolerance (0: off).", float_range=(0.0, 100.0), read_only=True),
-    ParamSpec("size_prior.model", list(DEFAULT_SIZE_MODEL), "a, b, c, d of the vessel's box size at a depth: width "
+          choices=DIMENSIONS),
+    Param("size_prior.tolerance", 0.3, "With size_prior.dimension: sizes up to exp(this) times the vessel's "
+              "expected size change nothing (natural log of the ratio).", value_range=(0.0, 5.0)),
+    Param("size_prior.strength", 10.0, "With size_prior.dimension: log-odds of p_target lowered per unit of "
+              "log size ratio beyond the tolerance (0: off).", value_range=(0.0, 100.0)),
+    Param("size_prior.model", list(DEFAULT_SIZE_MODEL), "a, b, c, d of the vessel's box size at a depth: width "
               "= a / depth + b, height = c / depth + d (px, m); the fuser's distance_model, which ./vessel fit "
-              "distance-model writes to both.", read_only=True),
-    ParamSpec("exclusion_polygons", list(DEFAULT_EXCLUSION_POLYGONS), "Static exclusion masks, one polygon "
+              "distance-model writes to both."),
+    Param("exclusion_polygons", list(DEFAULT_EXCLUSION_POLYGONS), "Static exclusion masks, one polygon "
               "per string 'x,y x,y x,y ...' in pixels of the calibrated image size (default: the challenge "
-              "camera's mooring post); [''] for none.", read_only=True),
-    ParamSpec("mask_max_inside", 0.5, "A detection whose box lies more than this share inside a mask is "
-              "dropped.", float_range=(0.0, 1.0)),
-    ParamSpec("appearance_model", "", "Appearance model of the vessel of interest (.npz from `python -m "
+              "camera's mooring post); [''] for none."),
+    Param("mask_max_inside", 0.5, "A detection whose box lies more than this share inside a mask is "
+              "dropped.", value_range=(0.0, 1.0), live=True),
+    Param("appearance_model", "", "Appearance model of the vessel of interest (.npz from `python -m "
               "vessel_tools.track.appearance fit`; relative paths from the working directory, then the repository): "
-              "scores become its probability of the vessel of interest. '' : off.", read_only=True),
-    ParamSpec("appearance_min_probability", DEFAULT_MIN_PROBABILITY, "With appearance_model: boxes whose "
-              "probability of being the vessel of interest is below this are dropped.", float_range=(0.0, 1.0),
-              read_only=True),
-    ParamSpec("appearance_combine", DEFAULT_COMBINE, "With appearance_model: replace (the published score is the "
-              "probability) or product (detector score x probability).", read_only=True),
-    ParamSpec("appearance_nested_overlap", DEFAULT_NESTED_OVERLAP, "With appearance_model: a box sharing more "
+              "scores become its probability of the vessel of interest. '' : off."),
+    Param("appearance_min_probability", DEFAULT_MIN_PROBABILITY, "With appearance_model: boxes whose "
+              "probability of being the vessel of interest is below this are dropped.", value_range=(0.0, 1.0)),
+    Param("appearance_combine", DEFAULT_COMBINE, "With appearance_model: replace (the published score is the "
+              "probability) or product (detector score x probability).", choices=COMBINE_MODES),
+    Param("appearance_nested_overlap", DEFAULT_NESTED_OVERLAP, "With appearance_model: a box sharing more "
               "than this share of the smaller box's area with a likelier box is dropped (one box per vessel; 0: off).",
-              float_range=(0.0, 1.0), read_only=True),
+              value_range=(0.0, 1.0)),
 )
 
-NODE_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("compressed_topic", "/camera/image_raw/compressed", "CompressedImage input topic.",
-              read_only=True),
-    ParamSpec("raw_topic", "/camera/image_raw", "Image input topic.", read_only=True),
-    ParamSpec("subscribe_compressed", True, "Subscribe to compressed_topic.", read_only=True),
-    ParamSpec("subscribe_raw", False, "Subscribe to raw_topic.", read_only=True),
-    ParamSpec("image_qos", "sensor_data", "QoS of the image subscriptions: sensor_data (best effort) or "
-              "reliable.", read_only=True),
-    ParamSpec("images_waiting", 1, "Images kept waiting while the network works; beyond this the oldest is "
+NODE_PARAMS: tuple[Param, ...] = (
+    Param("compressed_topic", "/camera/image_raw/compressed", "CompressedImage input topic."),
+    Param("raw_topic", "/camera/image_raw", "Image input topic."),
+    Param("subscribe_compressed", True, "Subscribe to compressed_topic."),
+    Param("subscribe_raw", False, "Subscribe to raw_topic."),
+    Param("image_qos", "sensor_data", "QoS of the image subscriptions: sensor_data (best effort) or "
+              "reliable.", choices=("sensor_data", "reliable")),
+    Param("images_waiting", 1, "Images kept waiting while the network works; beyond this the oldest is "
               "dropped (counted). 1 = only the newest (live cameras); 2 for a replay whose camera has "
               "frames_in_flight 2, so that two images arriving back to back are both detected.",
-              int_range=(1, 2), read_only=True),
-    ParamSpec("decode_ahead", True, "Decode the next waiting image in a second thread while the network runs on "
+              value_range=(1, 2)),
+    Param("decode_ahead", True, "Decode the next waiting image in a second thread while the network runs on "
               "the current one (at most one ahead per processed image); false: the worker decodes each image "
-              "itself, one thread.", read_only=True),
-    ParamSpec("detections_topic", "/vessel/detections", "Detection2DArray output topic (reliable).",
-              read_only=True),
-    ParamSpec("detections_qos_depth", 10, "History depth of the detections publisher.", int_range=(1, 1000),
-              read_only=True),
-    ParamSpec("publish_annotated", False, "Publish the annotated image (boxes, scores, band, masks).",
-              read_only=True),
-    ParamSpec("annotated_topic", "/vessel/detections/image", "Annotated image topic (Image, bgr8).",
-              read_only=True),
-    ParamSpec("annotated_scale", 0.5, "Scale of the annotated image (0.5: half resolution, lighter to send).",
-              float_range=(0.05, 1.0), read_only=True),
-    ParamSpec("frame_id", "", "frame_id for the output header when the image's is empty ('' : keep it).",
-              read_only=True),
+              "itself, one thread."),
+    Param("detections_topic", "/vessel/detections", "Detection2DArray output topic (reliable)."),
+    Param("detections_qos_depth", 10, "History depth of the detections publisher.", value_range=(1, 1000)),
+    Param("publish_annotated", False, "Publish the annotated image (boxes, scores, band, masks)."),
+    Param("annotated_topic", "/vessel/detections/image", "Annotated image topic (Image, bgr8)."),
+    Param("annotated_scale", 0.5, "Scale of the annotated image (0.5: half resolution, lighter to send).",
+              value_range=(0.05, 1.0)),
+    Param("frame_id", "", "frame_id for the output header when the image's is empty ('' : keep it)."),
 )
 
-ALL_PARAMS: tuple[ParamSpec, ...] = MODEL_PARAMS + DETECTION_PARAMS + NODE_PARAMS
-_BY_NAME = {spec.name: spec for spec in ALL_PARAMS}
+DETECTOR_PARAMETERS = ParameterTable(NODE_NAME, "Detector node (vessel_detect detector): images -> vessel boxes "
+                                     "(vision_msgs-style Detection2DArray).",
+                                     MODEL_PARAMS + DETECTION_PARAMS + NODE_PARAMS)
+_BY_NAME = {param.name: param for param in DETECTOR_PARAMETERS}
 
 
 def default_values() -> dict[str, Any]:
     """Every parameter at its default."""
-    return {spec.name: spec.default for spec in ALL_PARAMS}
+    return DETECTOR_PARAMETERS.defaults()
 
 
 def merge_values(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -241,14 +205,7 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
         band_bottom_px=float(values["band_bottom_px"]),
         tile_scales=tuple(float(s) for s in values["tile_scales"]),
         tile_overlap_px=int(values["tile_overlap_px"]),
-        tile_strip_px=float(values["tile_strip_px"]),
         global_pass=bool(values["global_pass"]),
-        band_scale=float(values["band_scale"]),
-        far_scale=float(values["far_scale"]),
-        far_above_horizon_px=float(values["far_above_horizon_px"]),
-        far_rows_px=float(values["far_rows_px"]),
-        far_p_target=str(values["far_p_target"]),
-        target_elsewhere_weight=float(values["target_elsewhere_weight"]),
         exclusion_polygons=polygons,
         mask_max_inside=float(values["mask_max_inside"]),
         target_class=str(values["target_class"]).strip(),

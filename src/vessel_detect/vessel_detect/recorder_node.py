@@ -8,6 +8,7 @@ bag lines up with its source), else the receive time on the node's clock (sim ti
 message with no time yet (an unset stamp before the first `/clock` of a replay) is written at the next known
 time, never at 1970, so a recording of a replay spans the replay's time only. On
 SIGINT/SIGTERM the bag is closed properly: index, summary and metadata.yaml written, nothing received is lost.
+Its parameters (``vessel_detect.parameter_tables.RECORDER_PARAMETERS``) are read-only: a restart changes them.
 
     ros2 run vessel_detect recorder --ros-args -p output:=out/run1 \
         -p topics:="['/vessel/fix', '/vessel/tracks:vessel_msgs/msg/VesselTrackArray']"
@@ -26,20 +27,13 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vessel_common.errors import DataError, VesselError
-from vessel_common.node_support import NodeHealth, declare_parameter, main_for, steady_timer
+from vessel_common.node_parameters import declare_table
+from vessel_common.node_support import NodeHealth, main_for, steady_timer
 from vessel_detect import bag_io
+from vessel_detect.parameter_tables import RECORDER_DEFAULT_TOPICS, RECORDER_PARAMETERS
 from vessel_detect.ros_messages import message_class
 
-DEFAULT_TOPICS = [
-    "/vessel/detections:vessel_msgs/msg/Detection2DArray",
-    "/vessel/tracks/screen:vessel_msgs/msg/VesselTrackArray",
-    "/vessel/tracks:vessel_msgs/msg/VesselTrackArray",
-    "/vessel/fix:sensor_msgs/msg/NavSatFix",
-    "/vessel/fixes",
-    "/vessel/gps_truth:sensor_msgs/msg/NavSatFix",
-    "/camera/fix:sensor_msgs/msg/NavSatFix",
-    "/diagnostics:diagnostic_msgs/msg/DiagnosticArray",
-]
+DEFAULT_TOPICS = list(RECORDER_DEFAULT_TOPICS)
 """The graph's outputs; `/vessel/fixes` takes its type from the graph (it depends on the GPS publisher's mode)."""
 
 _NS_PER_S = 1_000_000_000
@@ -91,27 +85,10 @@ class RecorderNode(Node):
 
     def __init__(self) -> None:
         super().__init__("recorder")
-        output = declare_parameter(
-            self, "output", "", "Bag folder to create (default: rosbag2_<UTC date-time> in the working directory)."
-        )
-        entries = declare_parameter(
-            self,
-            "topics",
-            DEFAULT_TOPICS,
-            "Topics to record, each '/name' (type from the graph) or '/name:pkg/msg/Type'.",
-        )
-        self.overwrite = declare_parameter(self, "overwrite", False, "Replace an existing bag at 'output'.")
-        self.discovery_period_s = declare_parameter(
-            self, "discovery_period_s", 0.5, "How often to look for publishers of topics not yet subscribed.",
-            float_range=(0.05, 60.0),
-        )
-        self.depth = declare_parameter(
-            self, "queue_depth", 100, "Subscription queue depth per topic.", int_range=(1, 100000)
-        )
-        self.flush_period_s = declare_parameter(
-            self, "flush_period_s", 1.0, "Write what was received to disk this often (a recorder killed with -9 "
-            "loses at most this much; `./vessel bag recover` makes its bag readable); 0: only at the end, s.",
-            float_range=(0.0, 3600.0))
+        values = declare_table(self, RECORDER_PARAMETERS)  # all read-only: the bag is set up at start
+        output, entries, self.overwrite = values["output"], values["topics"], values["overwrite"]
+        self.discovery_period_s, self.depth = values["discovery_period_s"], values["queue_depth"]
+        self.flush_period_s = values["flush_period_s"]
         self.plans = [parse_topic_entry(e) for e in entries if e.strip()]
         if not self.plans:
             raise DataError("parameter 'topics' is empty: name at least one topic to record")

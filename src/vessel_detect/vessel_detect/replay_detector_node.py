@@ -12,6 +12,9 @@ tell it from the detector. Two ways to pace it:
   previous one has arrived on ``ack_topic`` (or after ``ack_timeout_s``), and exits at the end.
 
 CSV columns: ``stamp`` (UNIX seconds), ``x1, y1, x2, y2`` (full-resolution pixels), ``score``, ``class_name``.
+
+Parameters: ``vessel_detect.parameter_tables.REPLAY_DETECTOR_PARAMETERS``; ``stamp_tolerance_s``, ``ack_timeout_s``
+and ``wait_for_subscribers`` may be changed while it runs (``ros2 param set``), the others are read-only.
 """
 
 from __future__ import annotations
@@ -26,9 +29,9 @@ from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Header
 
 from vessel_common.errors import DataError
+from vessel_common.node_parameters import declare_table
 from vessel_common.node_support import (
     NodeHealth,
-    declare_parameter,
     image_qos_profile,
     main_for,
     reliable_qos,
@@ -36,9 +39,10 @@ from vessel_common.node_support import (
     stamp_to_sec,
     steady_timer,
 )
+from vessel_detect.parameter_tables import REPLAY_CSV_COLUMNS, REPLAY_DETECTOR_PARAMETERS
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose, VesselTrackArray
 
-CSV_COLUMNS = ("stamp", "x1", "y1", "x2", "y2", "score", "class_name")
+CSV_COLUMNS = REPLAY_CSV_COLUMNS
 
 
 def load_detection_rows(path: Path) -> dict[float, list[tuple[float, float, float, float, float, str]]]:
@@ -65,31 +69,12 @@ class ReplayDetectorNode(Node):
 
     def __init__(self):
         super().__init__("detector")
-        csv_path = declare_parameter(self, "detections_csv", "", "CSV of detections to replay (columns: "
-                                     + ", ".join(CSV_COLUMNS) + ")", read_only=True)
-        self._tolerance_s = declare_parameter(self, "stamp_tolerance_s", 0.005, "largest stamp difference "
-                                              "between an image and its CSV rows, seconds", float_range=(0.0, 10.0))
-        self._pace = declare_parameter(self, "pace", "images", "'images': one array per received image; 'self': "
-                                       "one array per CSV stamp, paced by ack_topic, no camera needed",
-                                       read_only=True, additional_constraints="images | self")
-        image_topic = declare_parameter(self, "compressed_topic", "/camera/image_raw/compressed",
-                                        "CompressedImage topic to follow ('' to not subscribe; pace images)")
-        raw_topic = declare_parameter(self, "image_topic", "", "Image topic to follow ('' to not subscribe)")
-        image_qos = declare_parameter(self, "image_qos", "sensor_data", "QoS of the image subscriptions: "
-                                      "sensor_data (best effort) or reliable (with a camera publishing reliably, "
-                                      "no image is lost when the replay answers faster than a detector would)",
-                                      read_only=True, additional_constraints="sensor_data | reliable")
-        output_topic = declare_parameter(self, "detections_topic", "/vessel/detections", "Detection2DArray output")
-        ack_topic = declare_parameter(self, "ack_topic", "/vessel/tracks/screen", "pace self: the next array goes "
-                                      "when a VesselTrackArray with the previous stamp arrives here")
-        self._ack_timeout_s = declare_parameter(self, "ack_timeout_s", 5.0, "pace self: or after this long, s",
-                                                float_range=(0.01, 600.0))
-        self._frame_id = declare_parameter(self, "frame_id", "camera", "pace self: header frame_id")
-        self._wait_for = declare_parameter(self, "wait_for_subscribers", 1, "pace self: start once this many "
-                                           "subscribers of the detections are matched (e.g. tracker + recorder)",
-                                           int_range=(0, 100))
-        if self._pace not in ("images", "self"):
-            raise DataError(f"pace must be 'images' or 'self', not {self._pace!r}")
+        values = declare_table(self, REPLAY_DETECTOR_PARAMETERS, apply=self._apply_parameters)
+        self._apply_parameters(values)
+        csv_path, self._pace, image_qos = values["detections_csv"], values["pace"], values["image_qos"]
+        image_topic, raw_topic = values["compressed_topic"], values["image_topic"]
+        output_topic, ack_topic = values["detections_topic"], values["ack_topic"]
+        self._frame_id = values["frame_id"]
         qos = image_qos_profile(image_qos)
         self._rows = load_detection_rows(Path(csv_path)) if csv_path else {}
         if not csv_path:
@@ -112,12 +97,21 @@ class ReplayDetectorNode(Node):
         self.create_subscription(VesselTrackArray, ack_topic, self._on_ack, reliable_qos(10))
         steady_timer(self, 0.01, self._pace_self)
 
+    def _apply_parameters(self, values: dict) -> None:
+        """Take the live parameters, at start and on ``ros2 param set`` (checked by the table).
+
+        They are read at the next image or pacing tick.
+        """
+        self._tolerance_s = values["stamp_tolerance_s"]
+        self._ack_timeout_s = values["ack_timeout_s"]
+        self._wait_for = values["wait_for_subscribers"]
+
     @property
     def foreign_parameters(self) -> frozenset[str]:
         """The detector's parameters: standing in for it, this node reads its block of a shared file, ignoring them."""
-        from vessel_detect.detector_params import ALL_PARAMS
+        from vessel_detect.detector_params import DETECTOR_PARAMETERS
 
-        return frozenset(spec.name for spec in ALL_PARAMS)
+        return frozenset(DETECTOR_PARAMETERS.names)
 
     def _on_ack(self, tracks) -> None:
         if self._awaiting is not None and abs(stamp_to_sec(tracks.header.stamp) - self._awaiting) < 1e-6:

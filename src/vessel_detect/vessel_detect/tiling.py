@@ -231,12 +231,10 @@ def merge_windows(
     covered_threshold: float = 0.6,
     join_iou: float = 0.5,
     class_agnostic: bool = False,
-    priorities: list[int] | None = None,
 ) -> WindowDetections:
     """Merge the detections of overlapping windows into one set (see the module docstring).
 
-    Boxes not cut by a window edge are taken first, then cut ones; within each, boxes of windows with a lower
-    ``priorities`` entry (all equal by default) first, then the best score first. A box is dropped when
+    Boxes not cut by a window edge are taken first (best score first), then cut ones. A box is dropped when
     its IoU with a kept box of its class exceeds ``iou_threshold``, or when it is cut and a kept box of its
     class covers at least ``covered_threshold`` of its area.
     """
@@ -244,8 +242,7 @@ def merge_windows(
         return dets
     dets = join_cut_pieces(dets, windows, join_iou)
     is_cut = dets.cut.any(axis=1)
-    rank = np.zeros(len(dets)) if priorities is None else np.asarray(priorities, np.float64)[dets.window_index]
-    order = np.lexsort((-dets.scores, rank, is_cut))
+    order = np.lexsort((-dets.scores, is_cut))
     same_class = dets.class_ids[:, None] == dets.class_ids[None, :]
     if class_agnostic:
         same_class = np.ones_like(same_class)

@@ -146,10 +146,10 @@ def test_shipped_cue_ranks_the_vessel_first_among_the_detectors_boxes(data_dir, 
     """
     import cv2
 
-    from vessel_tools.calib.dataset import Dataset
     from vessel_calib.params import load_camera_yaml
     from vessel_common.paths import repo_root
     from vessel_detect.detector_params import build_detector, load_params_files
+    from vessel_tools.calib.dataset import Dataset
 
     config = repo_root() / "config"
     values, _ = load_params_files([config / "aitas.yaml", config / "detector_coco.yaml"])

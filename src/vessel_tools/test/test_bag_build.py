@@ -5,11 +5,11 @@ import math
 
 import numpy as np
 import pytest
+from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_common.errors import DataError
 from vessel_detect import bag_io
 from vessel_tools.detect import bag_build
-from vessel_fixtures import detect_synthetic as synthetic
 
 
 def run_cli(args, capsys):
@@ -181,8 +181,8 @@ def test_write_bag_rejects_bad_camera_position(tmp_path):
 
 @pytest.mark.data
 def test_shared_dataset_video_round_trip(tmp_path, capsys):
-    from vessel_tools.calib.dataset import Dataset
     from vessel_common.paths import default_data_dir
+    from vessel_tools.calib.dataset import Dataset
 
     data_dir = default_data_dir()
     if data_dir is None:

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vessel_tools import bench, proc_monitor
 from vessel_bringup import graph_watcher
+from vessel_tools import bench, bench_graph, bench_report, proc_monitor
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 
@@ -24,25 +24,13 @@ REPO_ROOT = Path(__file__).resolve().parents[3]
 # Pieces
 # ----------------------------------------------------------------------------------------------------------------
 def test_summary_ms_gives_median_and_p95_in_milliseconds():
-    summary = bench.summary_ms([0.001 * v for v in range(1, 101)])  # 1..100 ms
+    summary = bench_report.summary_ms([0.001 * v for v in range(1, 101)])  # 1..100 ms
     assert summary["n"] == 100
     assert summary["p50"] == pytest.approx(50.5)
     assert summary["p95"] == pytest.approx(95.05)
     assert summary["min"] == pytest.approx(1.0) and summary["max"] == pytest.approx(100.0)
-    empty = bench.summary_ms([float("nan")])
+    empty = bench_report.summary_ms([float("nan")])
     assert empty["n"] == 0 and math.isnan(empty["p50"])
-
-
-def test_the_detector_bench_times_other_modes_without_the_band_only_options():
-    from vessel_detect.detector_params import default_values, detector_config
-    from vessel_tools.bench_detector import values_in_mode
-
-    values = dict(default_values(), mode="band", far_scale=1.5, band_scale=0.75, model_path="m.onnx")
-    assert values_in_mode(values, "band")["far_scale"] == 1.5
-    for mode in ("full", "tiled"):
-        switched = values_in_mode(values, mode)
-        assert switched["mode"] == mode and switched["model_path"] == "m.onnx"
-        assert detector_config(switched).far_scale == 0.0 and detector_config(switched).band_scale == 0.0
 
 
 def test_node_parameters_follow_the_ros_rules_of_parameter_files(tmp_path):
@@ -72,13 +60,13 @@ def _synthetic_run(stamps_s, detect_s, warmup):
         times.update({topic: sent + detect + offset for topic, offset in offsets.items()})
         for topic, published in times.items():
             log.add(topic, int(stamp * 1e9), int(published * 1e9), int((published + 0.001) * 1e9))
-    return bench.GraphRun(log, warmup, len(stamps_s) - warmup, [], {}, 0, {}, None)
+    return bench_graph.GraphRun(log, warmup, len(stamps_s) - warmup, [], {}, 0, {}, None)
 
 
 def test_graph_figures_of_one_round_with_restamped_loops():
     # One round of 4 frames (a loop shifts the stamps), the first is warm-up; each frame has its own latency.
     detect = [0.5, 0.6, 0.7, 0.8]
-    figures = bench.graph_figures(_synthetic_run([10.0, 14.0, 18.0, 22.0], detect, warmup=1))
+    figures = bench_graph.graph_figures(_synthetic_run([10.0, 14.0, 18.0, 22.0], detect, warmup=1))
     assert figures["frames_measured"] == 3
     latencies = [d + 0.06 for d in detect[1:]]  # frames 1-3
     assert figures["latency_fix_ms"]["p50"] == pytest.approx(1000 * latencies[1])
@@ -95,7 +83,7 @@ def test_graph_figures_of_one_round_with_restamped_loops():
 def test_graph_figures_match_the_repeated_stamps_of_rounds_in_order_of_occurrence():
     # Two rounds replaying the same 2 frames: stamps repeat; the first frame of each round is warm-up.
     detect = [0.5, 0.6, 0.7, 0.8]
-    figures = bench.graph_figures(_synthetic_run([10.0, 14.0, 10.0, 14.0], detect, warmup=1))
+    figures = bench_graph.graph_figures(_synthetic_run([10.0, 14.0, 10.0, 14.0], detect, warmup=1))
     assert figures["frames_measured"] == 2
     assert figures["latency_fix_ms"]["min"] == pytest.approx(1000 * (0.6 + 0.06))  # frame 1, round 1
     assert figures["latency_fix_ms"]["max"] == pytest.approx(1000 * (0.8 + 0.06))  # frame 3, round 2
@@ -120,7 +108,7 @@ def test_looped_frames_repeat_the_bag_in_order():
 
 def test_write_json_is_atomic_and_writes_null_for_non_finite(tmp_path):
     path = tmp_path / "sub" / "bench.json"
-    bench.write_json(path, {"graph_fps": float("nan"), "nested": [1.5, float("inf")]})
+    bench_report.write_json(path, {"graph_fps": float("nan"), "nested": [1.5, float("inf")]})
     assert json.loads(path.read_text()) == {"graph_fps": None, "nested": [1.5, None]}
     assert [p.name for p in path.parent.iterdir()] == ["bench.json"]
 

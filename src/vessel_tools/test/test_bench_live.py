@@ -9,9 +9,9 @@ import sys
 from types import SimpleNamespace
 
 import pytest
+from vessel_bringup.graph_watcher import ArrivalLog
 
 from vessel_tools import bench_live
-from vessel_bringup.graph_watcher import ArrivalLog
 
 
 def test_counters_are_read_from_the_named_node_only():

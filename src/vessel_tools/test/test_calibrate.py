@@ -7,12 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 
 from vessel_calib import geodesy
-from vessel_tools.calib.calibration import evaluate
 from vessel_calib.params import load_camera_yaml
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
+from vessel_common.errors import CalibrationError
 from vessel_tools import calibrate as calibrate_tool
+from vessel_tools.calib.calibration import evaluate
+from vessel_tools.calibrate_options import ros_params_to_cli
 
 SRC = ":".join(str(p) for p in sorted(Path(__file__).resolve().parents[2].glob("vessel_*")) if p.is_dir())
 REPO = Path(__file__).resolve().parents[3]
@@ -309,8 +311,7 @@ def test_a_fit_with_few_pairs_warns_and_gives_a_leave_one_out_figure(tmp_path, c
 
 def test_ros_parameters_reach_options_whose_flag_differs_from_their_name():
     # --from stores into pairs_from; -p pairs_from:=... must reach it, and -p from:=... is not a parameter name.
-    assert calibrate_tool._ros_params_to_cli(["--ros-args", "-p", "pairs_from:=detections", "-p",
-                                              "max_camera_offset:=20"]) == ["--from", "detections",
-                                                                            "--max-camera-offset", "20"]
-    with pytest.raises(calibrate_tool.CalibrationError, match="unknown parameter 'from'"):
-        calibrate_tool._ros_params_to_cli(["--ros-args", "-p", "from:=detections"])
+    assert ros_params_to_cli(["--ros-args", "-p", "pairs_from:=detections", "-p",
+                              "max_camera_offset:=20"]) == ["--from", "detections", "--max-camera-offset", "20"]
+    with pytest.raises(CalibrationError, match="unknown parameter 'from'"):
+        ros_params_to_cli(["--ros-args", "-p", "from:=detections"])

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vessel_tools.calib.calibration import DEFAULT_BOX_ANCHOR, calibrate, calibrate_from_labels, evaluate
 from vessel_calib.geodesy import haversine_m
 from vessel_calib.params import load_camera_yaml
 from vessel_calib.water_level import load_water_level
+from vessel_tools.calib.calibration import DEFAULT_BOX_ANCHOR, calibrate, calibrate_from_labels, evaluate
 
 SHIPPED = Path(__file__).resolve().parents[3] / "config" / "aitas_camera.yaml"
 TIDE = Path(__file__).resolve().parents[3] / "config" / "water_level_aitas.csv"

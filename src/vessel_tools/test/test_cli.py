@@ -34,7 +34,7 @@ def test_the_help_lists_every_tool_with_the_fitting_ones():
 
 
 def test_the_help_names_every_detect_sub_command():
-    """`./vessel help` once left out `detect rank` and `detect quantize`."""
+    """`./vessel help` once left out `detect rank`."""
     import argparse
 
     from vessel_tools.detect.detect_cli import build_parser
@@ -63,7 +63,7 @@ def test_help_of_a_sub_tool_given_as_an_option_prints_the_options():
     (["bench", "--out", "F.json"], "vessel_tools.bench", ["--out", "F.json"]),
     (["bench", "live", "--minutes", "1"], "vessel_tools.bench_live", ["--minutes", "1"]),
     (["bag", "info", "B"], "vessel_tools.detect.bag_build", ["--info", "B"]),
-    (["params", "render", "--out", "D"], "vessel_track.node_params", ["render", "--out", "D"]),
+    (["params", "render", "--check"], "vessel_tools.parameter_docs", ["render", "--check"]),
     (["fit", "error-model", "S.csv"], "vessel_tools.track.error_model_fit", ["S.csv"]),
     (["demo", "--videos", "13"], "vessel_tools.demo", ["--videos", "13"]),
 ])

@@ -3,9 +3,9 @@ import shutil
 
 import pytest
 
-from vessel_tools.calib.dataset import Dataset
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, parse_videos, repo_root
+from vessel_tools.calib.dataset import Dataset
 
 
 def test_parse_videos():

@@ -195,8 +195,8 @@ def test_rows_that_cannot_be_scored_are_skipped_and_counted_by_reason(tmp_path):
 
 @pytest.mark.data
 def test_gps_itself_scores_zero_on_the_shared_data(tmp_path):
-    from vessel_tools.calib.dataset import Dataset
     from vessel_common.paths import default_data_dir
+    from vessel_tools.calib.dataset import Dataset
 
     root = default_data_dir()
     if root is None:

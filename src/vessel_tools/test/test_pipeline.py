@@ -8,14 +8,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vessel_fixtures.presets import paper_simulation_settings
 
 from vessel_common.errors import DataError
 from vessel_tools.track import pipeline as pl
-from vessel_track.fuser_settings import FuserSettings
 from vessel_tools.track.simulation import (
-    fuser_settings_of_simulation,
     vessel_of_interest_scenario,
 )
+from vessel_track.fuser_settings import FuserSettings
 
 
 def _frames(result):
@@ -37,7 +37,7 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
                 xw, yw, ok = camera.screen_to_world((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
                 if ok:
                     raw.append(math.hypot(xw - truth.world_xy[k, 0], yw - truth.world_xy[k, 1]))
-    settings = fuser_settings_of_simulation(camera)
+    settings = paper_simulation_settings(camera)
     settings = dataclasses.replace(settings, offline=dataclasses.replace(settings.offline, target=offline_target))
     config = pl.PipelineConfig(mode=mode, screen_source="measured", settings=settings)
     (video,) = pl.run(_frames(result), camera, config)
@@ -57,7 +57,7 @@ def test_simulation_target_chosen_and_fused_error_below_raw_back_projection(mode
 
 def test_the_offline_pass_can_smooth_what_the_online_selection_published():
     result = vessel_of_interest_scenario(seed=7).run()
-    settings = fuser_settings_of_simulation(result.camera)
+    settings = paper_simulation_settings(result.camera)
     online_config = pl.PipelineConfig(mode="online", screen_source="measured", settings=settings)
     (online,) = pl.run(_frames(result), result.camera, online_config)
     smoothed_settings = dataclasses.replace(settings, offline=dataclasses.replace(settings.offline, target="online"))
@@ -230,9 +230,9 @@ def test_cli_on_a_miniature_dataset_with_a_detections_file(tmp_path, capsys):
 
 
 def test_the_coasting_limit_comes_from_the_gps_publisher_block_as_the_nodes_read_it(tmp_path):
-    from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS
+    from vessel_track.parameter_tables import GPS_PUBLISHER_PARAMETERS
 
-    node_default = GPS_PUBLISHER_PARAMETERS["max_coast_s"][0]
+    node_default = GPS_PUBLISHER_PARAMETERS["max_coast_s"].default
     params = tmp_path / "params.yaml"
     params.write_text("/**:\n  ros__parameters:\n    max_coast_s: 7.0\n"
                       "gps_publisher:\n  ros__parameters:\n    max_coast_s: 3.5\n")
@@ -272,20 +272,14 @@ def _camera_yaml(tmp_path, camera):
     return write_camera_yaml(tmp_path / "camera.yaml", camera)
 
 
-def test_shipped_parameter_files_match_the_code_defaults():
-    """config/parts/fuser.yaml is what the fuser node uses without a parameter file, and documents every key."""
-    from pathlib import Path
+def test_the_fuser_table_holds_every_fuser_setting_with_its_default():
+    """Every ``FuserSettings`` value is a row of the fuser node's table, with the settings' default."""
+    from vessel_common.parameter_names import flatten
+    from vessel_track.parameter_tables import FUSER_PARAMETERS
 
-    from vessel_track.fuser_settings import load_fuser_settings
-    from vessel_track.node_params import FUSER_PARAMETERS, fuser_parameter_defaults
-
-    root = Path(__file__).resolve().parents[3]
-    shipped = root / "config" / "parts" / "fuser.yaml"
-    if not shipped.is_file():
-        pytest.skip(f"{shipped} is absent")
-    assert load_fuser_settings(shipped).to_params() == FuserSettings().to_params()
-    assert set(fuser_parameter_defaults()) == set(FUSER_PARAMETERS)
-    assert (root / "config" / "parts" / "gps_publisher.yaml").is_file()
+    defaults = flatten(FuserSettings().to_params())
+    assert {name: FUSER_PARAMETERS[name].default for name in defaults} == \
+        {name: list(value) if isinstance(value, tuple) else value for name, value in defaults.items()}
 
 
 def test_fuser_settings_merge_the_all_nodes_block_parameter_by_parameter(tmp_path):
@@ -316,7 +310,7 @@ def test_the_offline_pass_bridges_only_gaps_up_to_max_gap_s():
         frame, source = frames[k], result.frames[k]
         keep = np.asarray(source.gt_ids) != 0
         frames[k] = pl.DetectionFrame(frame.video, frame.frame, frame.stamp, frame.boxes[keep], frame.scores[keep])
-    settings = fuser_settings_of_simulation(result.camera)
+    settings = paper_simulation_settings(result.camera)
 
     def offline(max_gap_s):
         smoothed = dataclasses.replace(settings, offline=dataclasses.replace(settings.offline, target="joined",

@@ -20,9 +20,8 @@ from vessel_tools.track.simulation import (
     bearing_point,
     challenge_camera,
     harbour_scenario,
-    run_tracker,
-    score_tracking,
 )
+from vessel_tools.track.tracking_score import run_tracker, score_tracking
 from vessel_track.tracker import MultiTargetTracker, TrackerConfig, TrackState, TrackStatus
 
 PERFECT = DetectorModel(center_std_px=0.0, size_std_frac=0.0, miss_prob=0.0, clutter_rate=0.0,

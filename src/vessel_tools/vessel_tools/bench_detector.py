@@ -33,12 +33,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vessel_tools.calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, repo_file, repo_root
-from vessel_detect.detector import BAND_ONLY_OPTIONS
 from vessel_detect.detector_params import build_detector, load_params_files, open_model
+from vessel_tools.calib.dataset import Dataset
 
 MODES = ("full", "band", "tiled")
 
@@ -271,11 +270,8 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def values_in_mode(values: Mapping[str, Any], mode: str) -> dict[str, Any]:
-    """The detector parameters with ``mode`` set; the band-only options are turned off in the other modes."""
-    switched = dict(values, mode=mode)
-    if mode != "band":
-        switched.update(dict.fromkeys(BAND_ONLY_OPTIONS, 0.0))
-    return switched
+    """The detector parameters with ``mode`` set."""
+    return dict(values, mode=mode)
 
 
 def compare_with_baseline(values, camera, model, baseline_files: list[str], jpegs: list[bytes],

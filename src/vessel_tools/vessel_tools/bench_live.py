@@ -26,14 +26,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from vessel_bringup.graph import default_calibration_file, default_params_file
+from vessel_bringup.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
 
-from vessel_tools.calib.dataset import Dataset
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir
 from vessel_tools.bench import GraphError, GraphSession, _domain_id, log, machine_info, print_and_save, summary_ms
-from vessel_bringup.graph import default_calibration_file, default_params_file
-from vessel_bringup.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
+from vessel_tools.calib.dataset import Dataset
 from vessel_tools.proc_monitor import node_pid, read_proc
 
 DEFAULT_FPS = 25.0

@@ -33,13 +33,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from vessel_bringup.graph_watcher import GraphWatcher
 
 from vessel_calib import geodesy
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir
 from vessel_tools.bench import _domain_id, log, machine_info, print_and_save
-from vessel_bringup.graph_watcher import GraphWatcher
 from vessel_tools.track.offline_data import open_dataset
 
 RESTARTABLE = ("tracker", "fuser", "gps_publisher", "detector")

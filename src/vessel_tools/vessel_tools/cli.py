@@ -40,22 +40,24 @@ TOOLS: dict[str, Tool | Group] = {
                     "summary.json", "out/demo/summary.json --out docs/results.md"),
     "graph": Tool("vessel_bringup.graph", "start the node graph as processes, what vessel_graph.launch.py does",
                   "[--source BAG|VIDEO|DIR|device:N] [--rate R] [--nodes LIST] [--respawn] [--record BAG]"),
-    "eval": Tool("vessel_tools.track.evaluation", "score predictions like the paper (m per 100 m, median, p80, coverage)",
+    "eval": Tool("vessel_tools.track.evaluation",
+                 "score predictions like the paper (m per 100 m, median, p80, coverage)",
                  "PREDICTIONS.csv --data DIR [--videos LIST] [--out DIR]"),
     "calibrate": Tool("vessel_tools.calibrate", "GPS-only camera calibration into a ROS parameter file "
                       "(without hand labels: the vessel is found among detected boats)",
                       "--data DIR --videos 7-12 --out FILE.yaml [--water-level CSV] [--from labels|detections]"),
     "bag": Group({
-        "build": Tool("vessel_tools.detect.bag_build", "rosbag2 MCAP folders (one per video) from a dataset folder or a "
-                      "video file", "--data DIR [--videos LIST] --out BAGDIR"),
-        "info": Tool("vessel_tools.detect.bag_build", "topics, counts and time span of bags (what `ros2 bag info` shows)",
+        "build": Tool("vessel_tools.detect.bag_build", "rosbag2 MCAP folders (one per video) from a dataset folder or "
+                      "a video file", "--data DIR [--videos LIST] --out BAGDIR"),
+        "info": Tool("vessel_tools.detect.bag_build",
+                     "topics, counts and time span of bags (what `ros2 bag info` shows)",
                      "BAG...", ("--info",)),
         "recover": Tool("vessel_tools.detect.bag_build", "make a bag whose recorder died (or that was cut short) "
                         "readable", "BAG [--out NEW]", ("--recover",)),
     }),
     "detect": Tool("vessel_tools.detect.detect_cli", "the detector over a dataset folder; its recall; training labels "
-                   "generated from the GPS; fine-tune the detector on them; rank against the GPS; int8 quantization",
-                   "run|recall|rank|export-labels|train|quantize ..."),
+                   "generated from the GPS; fine-tune the detector on them; rank against the GPS",
+                   "run|recall|rank|export-labels|train ..."),
     "bench": Group({
         "graph": Tool("vessel_tools.bench", "the whole graph's frames/s and latency against the detector core",
                       "[--out FILE.json]"),
@@ -80,8 +82,8 @@ TOOLS: dict[str, Tool | Group] = {
     "appearance": Tool("vessel_tools.track.appearance", "the vessel-of-interest appearance cue: fit, score, rank",
                        "fit|score|rank ..."),
     "params": Group({
-        "render": Tool("vessel_track.node_params", "write config/parts/fuser.yaml and gps_publisher.yaml with "
-                       "every parameter and its description", "--out config/parts [--params FILE]", ("render",)),
+        "render": Tool("vessel_tools.parameter_docs", "write config/parts/NODE.yaml and the table of "
+                       "docs/parameters.md from the nodes' parameter tables", "[--check]", ("render",)),
     }),
     "simulate": Tool("vessel_tools.track.simulation", "the tracker on simulated harbour traffic: id switches, extra "
                      "tracks, RMSE", "[--interval 4 1 0.1] [--seeds 6]"),
@@ -170,7 +172,6 @@ def _entry(name: str):
 
 
 demo = _entry("demo")
-graph = _entry("graph")
 bench = _entry("bench")
 evaluate = _entry("eval")
 pipeline = _entry("pipeline")

@@ -22,17 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
-
-from vessel_tools.calib.dataset import TRAIN_VIDEOS, Dataset
-from vessel_calib.params import atomic_write_text, load_camera_yaml
-from vessel_common.command_line import command_line_tool
-from vessel_common.errors import DataError, VesselError
-from vessel_common.paths import default_data_dir, parse_videos
-from vessel_tools.detect.bag_build import BuildOptions, build_from_dataset
-from vessel_detect.bag_io import BagReader, ns_of_stamp, recover_bag
-from vessel_detect.replay_detector_node import CSV_COLUMNS
-from vessel_tools import calibrate as calibrate_tool
-from vessel_tools.demo_report import write_report
 from vessel_bringup.graph import (
     GRAPH_NODES,
     RECORDER,
@@ -43,9 +32,20 @@ from vessel_bringup.graph import (
     wait_until_connected,
 )
 from vessel_bringup.graph_watcher import GraphWatcher
+
+from vessel_calib.params import atomic_write_text, load_camera_yaml
+from vessel_common.command_line import command_line_tool
+from vessel_common.errors import DataError, VesselError
+from vessel_common.paths import default_data_dir, parse_videos
+from vessel_detect.bag_io import BagReader, ns_of_stamp, recover_bag
+from vessel_detect.replay_detector_node import CSV_COLUMNS
+from vessel_tools import calibrate as calibrate_tool
+from vessel_tools.calib.dataset import TRAIN_VIDEOS, Dataset
+from vessel_tools.demo_report import write_report
+from vessel_tools.detect.bag_build import BuildOptions, build_from_dataset
 from vessel_tools.track.evaluation import FIX_COLUMNS
-from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
 from vessel_tools.track.offline_data import DetectionFrame
+from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
 from vessel_track.tracker import load_tracker_config
 from vessel_track.tracker_node import detections_to_arrays, load_detection_inputs
 

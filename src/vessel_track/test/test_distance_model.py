@@ -6,6 +6,8 @@ import pytest
 
 from vessel_calib.camera_model import CameraModel
 from vessel_common.errors import DataError
+from vessel_tools.track.distance_model_fit import fit_distance_model
+from vessel_tools.track.simulation import CHALLENGE_H, CHALLENGE_K1, challenge_camera
 from vessel_track.distance_model import (
     BoxSizeDistanceModel,
     box_cut_by_border,
@@ -13,8 +15,6 @@ from vessel_track.distance_model import (
     depth_scale,
     ideal_y_of_depth,
 )
-from vessel_tools.track.distance_model_fit import fit_distance_model
-from vessel_tools.track.simulation import CHALLENGE_H, CHALLENGE_K1, challenge_camera
 
 
 def _world_points(n=80, seed=0):

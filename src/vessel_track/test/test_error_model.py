@@ -4,8 +4,8 @@ import pytest
 import yaml
 
 from vessel_common.errors import DataError
-from vessel_track.error_model import PAPER_SLOPE, ErrorModel
 from vessel_tools.track.error_model_fit import fit_error_model, main
+from vessel_track.error_model import PAPER_SLOPE, ErrorModel
 
 
 def test_paper_default_and_sigma():

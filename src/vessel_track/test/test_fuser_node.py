@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vessel_fixtures.presets import paper_simulation_settings
 
 pytestmark = pytest.mark.ros
 
@@ -221,14 +222,17 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path, 
 
     from vessel_calib import geodesy
     from vessel_common.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
+    from vessel_common.parameter_names import flatten
+    from vessel_common.parameter_table import part_file_text
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
-    from vessel_track.node_params import render_fuser_yaml
-    from vessel_tools.track.simulation import fuser_settings_of_simulation, vessel_of_interest_scenario
+    from vessel_tools.track.simulation import vessel_of_interest_scenario
+    from vessel_track.parameter_tables import FUSER_PARAMETERS
 
     result = vessel_of_interest_scenario(seed=3).run()
     camera = result.camera
     # The fusion parameters of the simulated world (its box-size model), as `distance_model fit` would find them.
-    params = write_params(tmp_path / "params.yaml", extra=render_fuser_yaml(fuser_settings_of_simulation(camera)))
+    simulated = flatten(paper_simulation_settings(camera).to_params())
+    params = write_params(tmp_path / "params.yaml", extra=part_file_text(FUSER_PARAMETERS.with_defaults(simulated)))
     processes = [start_node("vessel_track", name, "--ros-args", "--params-file", str(params))
                  for name in ("tracker", "fuser", "gps_publisher")]
     node = rclpy.create_node("fix_consumer", context=ros_context)
@@ -361,3 +365,81 @@ def test_published_covariances_are_exactly_symmetric():
     for flat in (msg.position_covariance, msg.velocity_covariance):
         assert flat[1] == flat[2]
     assert msg.position_covariance[0] == 40.0 and msg.position_covariance[3] == 20.0
+
+
+class _CreatesAFileWhenUnpickled:
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return open, (self.path, "w")
+
+
+class _Lines:
+    """A node's logger that keeps what it is given: ``lines`` of (level, message)."""
+
+    def __init__(self):
+        self.lines: list[tuple[str, str]] = []
+
+    def __getattr__(self, level):
+        return lambda message, **kwargs: self.lines.append((level, str(message)))
+
+
+def test_a_restarted_fuser_refuses_a_pickled_state_file_and_carries_on_from_its_own(monkeypatch, ros_context,
+                                                                                     tmp_path):
+    """A pickle at ``state_file`` (the old format, or crafted to run code) is never loaded: one warning, a cold start.
+
+    The snapshots the node then writes are JSON; a fuser restarted on them publishes what one never stopped does,
+    the vessel of interest included.
+    """
+    import pickle
+
+    from rclpy.parameter import Parameter
+    from vessel_fixtures.ros_nodes import node_in_context
+
+    from vessel_common.node_support import sec_to_stamp
+    from vessel_common.state_file import VERSION
+    from vessel_msgs.msg import VesselTrackArray
+    from vessel_tools.track.simulation import harbour_scenario
+    from vessel_track.fuser_node import FuserNode
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker_node import track_to_msg
+
+    marker, path = tmp_path / "created_by_the_pickle", tmp_path / "fuser.state"
+    path.write_bytes(pickle.dumps({"format": "vessel_state/1", "state": _CreatesAFileWhenUnpickled(marker)}))
+    tracker, messages = MultiTargetTracker(TrackerConfig()), []
+    for frame in harbour_scenario(seed=3).run().frames:
+        msg = VesselTrackArray()
+        msg.header.stamp, msg.header.frame_id = sec_to_stamp(frame.stamp), "camera"
+        msg.tracks = [track_to_msg(s, msg.header) for s in tracker.update(frame.stamp, frame.boxes_xyxy, frame.scores)]
+        messages.append(msg)
+    half = len(messages) // 2
+
+    def run(messages, state_file):
+        overrides = [Parameter("camera.builtin_calibration", value=True), Parameter("state_file", value=state_file),
+                     Parameter("state_period_s", value=0.0)]
+        with monkeypatch.context() as patch:  # one process, one node after the other
+            node = node_in_context(patch, ros_context, FuserNode, overrides)
+            log, published = _Lines(), []
+            patch.setattr(node, "get_logger", lambda: log)
+            patch.setattr(node.publisher, "publish", published.append)
+            try:
+                for msg in messages:
+                    node.on_tracks(msg)
+                tracks = [[(t.id, t.is_target, t.has_world, round(t.position.x, 6), round(t.position.y, 6))
+                           for t in m.tracks] for m in published]
+                return tracks, log.lines, node.health.counts
+            finally:
+                node.destroy_node()
+
+    straight, _, _ = run(messages, "")
+    assert any(is_target for frame in straight[half:] for _, is_target, *_ in frame)
+    before, lines, counts = run(messages[:half], str(path))
+    assert not marker.exists()
+    refused = [message for _, message in lines if "state file" in message]
+    assert len(refused) == 1 and counts.get("state_file_refused") == 1, lines
+    assert refused[0].startswith(f"state file {path} is not a fuser state file of version {VERSION}: it is a pickle")
+    assert "; cold start" in refused[0] and before == straight[:half]  # cold: as if there were no file
+    after, lines, counts = run(messages[half:], str(path))  # the restart, on the JSON snapshot the first one wrote
+    assert counts.get("resumed_from_state_file") == 1 and "state_file_refused" not in counts, lines
+    assert after == straight[half:]

@@ -3,10 +3,13 @@ import math
 
 import numpy as np
 import pytest
+from vessel_fixtures.presets import paper_selection
 
 from vessel_calib.camera_model import CameraModel
 from vessel_common.errors import DataError
 from vessel_common.state_file import StateFile, settings_fingerprint
+from vessel_tools.track.pipeline import screen_track_of
+from vessel_tools.track.simulation import challenge_camera, harbour_scenario
 from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
 from vessel_track.fuser_settings import FuserSettings
 from vessel_track.fusion import (
@@ -21,9 +24,6 @@ from vessel_track.fusion import (
     fuse_boxes,
     gls_weights,
 )
-from vessel_tools.track.pipeline import screen_track_of
-from vessel_track.selection import SelectionConfig
-from vessel_tools.track.simulation import challenge_camera, harbour_scenario
 from vessel_track.tracker import MultiTargetTracker, TrackerConfig
 
 MODEL = BoxSizeDistanceModel(a=3000.0, b=5.0, c=1500.0, d=2.0)
@@ -261,7 +261,7 @@ def test_a_target_track_that_jumps_onto_another_vessel_stops_being_the_target():
     other boat.
     """
     cam = challenge_camera()
-    fuser = TrackFuser(cam, MODEL, selection_config=SelectionConfig(reacquire_window_s=3600.0))
+    fuser = TrackFuser(cam, MODEL, selection_config=paper_selection(reacquire_window_s=3600.0))
     t = np.arange(80) * 0.1
     vessel = np.column_stack([60.0 + 3.0 * t, 40.0 + 0.0 * t])
     other = np.column_stack([120.0 + 0.0 * t, 20.0 + 0.0 * t])

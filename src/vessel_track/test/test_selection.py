@@ -5,11 +5,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from vessel_fixtures.presets import paper_selection
 
 from vessel_common.errors import DataError
 from vessel_track.selection import (
     OnlineTargetSelector,
-    SelectionConfig,
     Trajectory,
     join_trajectories,
     path_length_m,
@@ -30,7 +30,7 @@ def test_evidence_score_accumulates_log_odds_and_prefers_the_steady_track():
     """Evidence: many frames that look like the vessel beat a few that look very much like it."""
     steady = np.full(20, 0.8)                      # log-odds 1.386 each
     brief = np.array([0.999, 0.999, 0.3, 0.3])     # clipped at 4, then -0.847 each
-    evidence = SelectionConfig(confidence_score="evidence", evidence_clip=4.0)
+    evidence = paper_selection(confidence_score="evidence", evidence_clip=4.0)
     assert trajectory_score(steady, 500.0, mode="evidence") == pytest.approx(20 * math.log(4.0) * math.log(500.0))
     assert trajectory_score(brief, 500.0, mode="evidence", evidence_clip=4.0) == pytest.approx(
         (8.0 + 2 * math.log(0.3 / 0.7)) * math.log(500.0))
@@ -39,7 +39,7 @@ def test_evidence_score_accumulates_log_odds_and_prefers_the_steady_track():
     b = Trajectory("B", np.arange(4) * 4.0, np.column_stack([np.arange(4) * 50.0, np.ones(4) * 500]), brief)
     assert a.score(evidence) > b.score(evidence)
     # The paper's 80th percentile would prefer the brief one.
-    assert b.score(SelectionConfig(confidence_percentile=80)) > a.score(SelectionConfig(confidence_percentile=80))
+    assert b.score(paper_selection(confidence_percentile=80)) > a.score(paper_selection(confidence_percentile=80))
 
 
 def test_path_log_floor_lets_confidence_rank_tracks_that_have_not_moved():
@@ -47,7 +47,7 @@ def test_path_log_floor_lets_confidence_rank_tracks_that_have_not_moved():
     assert trajectory_score([0.9], 0.5, path_log_floor=1.0) > trajectory_score([0.3], 0.5, path_log_floor=1.0)
     assert trajectory_score([0.9], 500.0, path_log_floor=1.0) == pytest.approx(0.9 * math.log(500.0))
     with pytest.raises(DataError, match="path_log_floor"):
-        SelectionConfig(path_log_floor=-1.0)
+        paper_selection(path_log_floor=-1.0)
 
 
 def _line(tid, t0, t1, start, velocity, conf=0.8, dt=4.0):
@@ -65,11 +65,11 @@ def test_a_trajectory_cut_in_the_middle_is_joined_and_wins():
     chains = join_trajectories([vessel_a, vessel_b, sailboat, post, unrelated])
     members = sorted(sorted(c.members) for c in chains)
     assert ["A", "B"] in members and ["U"] in members
-    best, scored = select_target([vessel_a, vessel_b, sailboat, post, unrelated])
+    best, scored = select_target([vessel_a, vessel_b, sailboat, post, unrelated], paper_selection())
     assert best.members == ["A", "B"]
     assert dict((c.track_id, s) for c, s in scored)["P"] == 0.0
     # Without joining, the sailboat's single long trajectory would have won.
-    best_unjoined, _ = select_target([vessel_a, vessel_b, sailboat, post, unrelated], join=False)
+    best_unjoined, _ = select_target([vessel_a, vessel_b, sailboat, post, unrelated], paper_selection(), join=False)
     assert best_unjoined.track_id == "S"
 
 
@@ -77,7 +77,7 @@ def test_overlapping_or_distant_pieces_are_not_joined():
     a = _line("A", 0, 60, [100, 0], [2.0, 1.0])
     overlapping = _line("O", 40, 100, [180, 40], [2.0, 1.0])
     assert len(join_trajectories([a, overlapping])) == 2
-    assert len(join_trajectories([a, overlapping], SelectionConfig(join_max_overlap_s=25.0))) == 1
+    assert len(join_trajectories([a, overlapping], paper_selection(join_max_overlap_s=25.0))) == 1
     late = _line("L", 200, 260, [500, 200], [2.0, 1.0])
     assert len(join_trajectories([a, late])) == 2
     with pytest.raises(DataError):
@@ -90,7 +90,7 @@ def _wt(tid, pos, conf=0.8, status=1, updated=True, velocity=(0.0, 0.0)):
 
 
 def test_online_selection_has_hysteresis():
-    selector = OnlineTargetSelector(SelectionConfig(switch_ratio=1.2, switch_margin=0.5, switch_hold_s=8.0))
+    selector = OnlineTargetSelector(paper_selection(switch_ratio=1.2, switch_margin=0.5, switch_hold_s=8.0))
     # Two similar vessels: the first chosen stays chosen while the other is only slightly better.
     targets = []
     for k in range(30):
@@ -112,15 +112,6 @@ def test_online_selection_has_hysteresis():
     assert switched_at - ahead_since >= 8.0
 
 
-def test_boxes_of_the_wrong_size_lower_a_score_whatever_its_sign():
-    for confidences in (np.full(5, 0.8), np.full(5, 0.2)):  # positive evidence, then negative
-        all_agree = trajectory_score(confidences, 500.0, consistent=5, known=5, mode="evidence")
-        none_agree = trajectory_score(confidences, 500.0, consistent=0, known=5, mode="evidence")
-        assert none_agree < all_agree
-    assert trajectory_score(np.full(5, 0.2), 500.0, consistent=0, known=5, mode="evidence") == pytest.approx(
-        trajectory_score(np.full(5, 0.2), 500.0, mode="evidence") * 7.0)
-
-
 def test_online_evidence_leaves_a_first_track_that_looks_unlike_the_vessel():
     """Video 11's start: the first of two tracks that have not moved yet looks less like the vessel.
 
@@ -137,14 +128,14 @@ def test_online_evidence_leaves_a_first_track_that_looks_unlike_the_vessel():
             targets.append(selector.update(4.0 * k, tracks))
         return targets
 
-    assert set(run(SelectionConfig())) == {"A"}
-    targets = run(SelectionConfig(confidence_score="evidence", path_log_floor=1.0, switch_hold_s=8.0))
+    assert set(run(paper_selection())) == {"A"}
+    targets = run(paper_selection(confidence_score="evidence", path_log_floor=1.0, switch_hold_s=8.0))
     assert targets[0] == "A" and targets[-1] == "B"
     assert targets.index("B") >= 3                      # not before the hold time
 
 
 def test_online_join_keeps_the_target_through_a_new_track_id():
-    selector = OnlineTargetSelector()
+    selector = OnlineTargetSelector(paper_selection())
     for k in range(10):
         selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)),
                                   _wt("S", [-300, 300 + 0.4 * k], conf=0.6, velocity=(0, 0.1))])
@@ -165,7 +156,7 @@ def _no_world(tid, conf=0.8, status=0):
 
 def test_a_track_whose_first_box_had_no_position_continues_the_lost_history():
     """The vessel comes back at the image edge: its new track's first box has no position, its second does."""
-    config = SelectionConfig(reacquire_window_s=3600.0)
+    config = paper_selection(reacquire_window_s=3600.0)
     selector = OnlineTargetSelector(config)
     for k in range(10):
         selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)),
@@ -181,7 +172,7 @@ def test_a_track_whose_first_box_had_no_position_continues_the_lost_history():
 
 def test_a_track_that_ran_beside_the_ended_one_does_not_take_its_history():
     """Two tracks at the same time are two boats, whatever the positions say later."""
-    selector = OnlineTargetSelector(SelectionConfig(reacquire_window_s=3600.0))
+    selector = OnlineTargetSelector(paper_selection(reacquire_window_s=3600.0))
     for k in range(10):
         selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)), _no_world("C")])
     selector.update(40.0, [_wt("A", [180, 50], status=3), _no_world("C")])
@@ -191,7 +182,7 @@ def test_a_track_that_ran_beside_the_ended_one_does_not_take_its_history():
 
 
 def test_tentative_target_only_while_nothing_established():
-    selector = OnlineTargetSelector()
+    selector = OnlineTargetSelector(paper_selection())
     assert selector.update(0.0, [_wt("T", [100, 0], status=0)]) == "T"
     assert selector.update(4.0, [_wt("T", [104, 0], status=0), _wt("E", [0, 100], status=1)]) == "E"
     assert selector.update(8.0, []) is None
@@ -199,17 +190,17 @@ def test_tentative_target_only_while_nothing_established():
 
 def test_config_validation():
     with pytest.raises(DataError):
-        SelectionConfig(switch_ratio=0.5)
+        paper_selection(switch_ratio=0.5)
     with pytest.raises(DataError):
-        SelectionConfig(confidence_percentile=120)
+        paper_selection(confidence_percentile=120)
     with pytest.raises(DataError, match="confidence_score"):
-        SelectionConfig(confidence_score="mean")
+        paper_selection(confidence_score="mean")
     with pytest.raises(DataError, match="evidence_clip"):
-        SelectionConfig(evidence_clip=0.0)
+        paper_selection(evidence_clip=0.0)
 
 
 def test_handover_to_a_new_track_while_the_target_coasts():
-    selector = OnlineTargetSelector()
+    selector = OnlineTargetSelector(paper_selection())
     for k in range(8):
         selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0))])
     assert selector.target == "A"
@@ -218,7 +209,7 @@ def test_handover_to_a_new_track_while_the_target_coasts():
                                     _wt("B", [166, 58], status=0, velocity=(0.0, 0.0))])
     assert target == "B" and selector.joins == 1
     # Far from where A should be: no handover.
-    selector2 = OnlineTargetSelector()
+    selector2 = OnlineTargetSelector(paper_selection())
     for k in range(8):
         selector2.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0))])
     target = selector2.update(32.0, [_wt("A", [164, 50], status=2, updated=False, velocity=(2.0, 0)),
@@ -227,7 +218,7 @@ def test_handover_to_a_new_track_while_the_target_coasts():
 
 
 def test_no_stand_in_right_after_the_target_is_lost():
-    selector = OnlineTargetSelector(SelectionConfig(reacquire_fraction=0.9, join_max_gap_s=30.0))
+    selector = OnlineTargetSelector(paper_selection(reacquire_fraction=0.9, join_max_gap_s=30.0))
     for k in range(20):
         selector.update(4.0 * k, [_wt("A", [100 + 12.0 * k, 50], velocity=(3.0, 0)),
                                   _wt("S", [-300, 300 + 0.4 * k], conf=0.6, velocity=(0, 0.1))])
@@ -240,7 +231,7 @@ def test_no_stand_in_right_after_the_target_is_lost():
 
 def test_a_long_reacquire_window_never_puts_a_stand_in_in_the_lost_targets_place():
     """Video 17: the vessel runs off beyond detection; another boat is not published as the vessel."""
-    selector = OnlineTargetSelector(SelectionConfig(reacquire_fraction=0.9, join_max_gap_s=30.0,
+    selector = OnlineTargetSelector(paper_selection(reacquire_fraction=0.9, join_max_gap_s=30.0,
                                                     reacquire_window_s=3600.0))
     for k in range(20):
         selector.update(4.0 * k, [_wt("A", [100 + 12.0 * k, 50], velocity=(3.0, 0)),
@@ -253,13 +244,13 @@ def test_a_long_reacquire_window_never_puts_a_stand_in_in_the_lost_targets_place
         target = selector.update(2004.0 + 4.0 * k, [_wt("B", [100 + 12.0 * k, -50], conf=0.95, velocity=(3.0, 0))])
     assert target == "B"
     with pytest.raises(DataError, match="reacquire_window_s"):
-        SelectionConfig(reacquire_window_s=-1.0)
+        paper_selection(reacquire_window_s=-1.0)
 
 
 def test_identity_change_ends_the_targets_history_and_a_join_can_give_it_back():
     """The target's world filter stopped fitting it: its history ends; it comes back only through a join."""
     def warmed_up():
-        selector = OnlineTargetSelector(SelectionConfig(reacquire_window_s=3600.0))
+        selector = OnlineTargetSelector(paper_selection(reacquire_window_s=3600.0))
         for k in range(10):
             selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0)),
                                       _wt("S", [-300, 300], conf=0.6)])
@@ -286,7 +277,7 @@ def test_identity_change_ends_the_targets_history_and_a_join_can_give_it_back():
 
 
 def test_continued_names_this_frames_joins_and_handovers():
-    selector = OnlineTargetSelector()
+    selector = OnlineTargetSelector(paper_selection())
     for k in range(8):
         selector.update(4.0 * k, [_wt("A", [100 + 8.0 * k, 50], velocity=(2.0, 0))])
     assert selector.continued == {}
@@ -299,7 +290,7 @@ def test_continued_names_this_frames_joins_and_handovers():
 
 def test_a_tentative_first_guess_gives_way_at_once_to_a_likelier_track():
     """Video 11's start: both tracks are still tentative; the hold time protects established targets only."""
-    config = SelectionConfig(confidence_score="evidence", path_log_floor=1.0, switch_hold_s=8.0)
+    config = paper_selection(confidence_score="evidence", path_log_floor=1.0, switch_hold_s=8.0)
     selector = OnlineTargetSelector(config)
     first = selector.update(0.0, [_wt("A", [340, 50], conf=0.93, status=0), _wt("B", [290, -48], conf=0.9, status=0)])
     assert first == "A"
@@ -314,9 +305,9 @@ def test_a_tentative_first_guess_gives_way_at_once_to_a_likelier_track():
 def test_a_boat_the_detector_calls_unlikely_is_never_the_target_with_positive_evidence_only():
     unlikely = np.full(10, 0.05)
     other = Trajectory("B", np.arange(10) * 4.0, np.column_stack([np.arange(10) * 20.0, np.zeros(10)]), unlikely)
-    config = SelectionConfig(confidence_score="evidence", path_log_floor=1.0)
+    config = paper_selection(confidence_score="evidence", path_log_floor=1.0)
     assert select_target([other], config)[0] is other  # the best there is, however unlikely
-    strict = SelectionConfig(confidence_score="evidence", path_log_floor=1.0, positive_evidence_only=True)
+    strict = paper_selection(confidence_score="evidence", path_log_floor=1.0, positive_evidence_only=True)
     assert select_target([other], strict)[0] is None
     selector = OnlineTargetSelector(strict)
     published = [selector.update(4.0 * k, [_wt("B", [20.0 * k, 0], conf=0.05)]) for k in range(6)]
@@ -330,7 +321,7 @@ def test_a_boat_the_detector_calls_unlikely_is_never_the_target_with_positive_ev
 
 
 def _evidence_config(**kw):
-    return SelectionConfig(confidence_score="evidence", path_log_floor=1.0, positive_evidence_only=True,
+    return paper_selection(confidence_score="evidence", path_log_floor=1.0, positive_evidence_only=True,
                            reacquire_window_s=3600.0, **kw)
 
 
@@ -358,24 +349,10 @@ def test_a_target_whose_recent_boxes_say_another_boat_loses_the_role():
     assert target == "V" and selector.continued == {"V": "A~1"}
 
 
-def test_evidence_forgets_with_a_half_life_in_seconds():
-    """A track that followed another boat and now follows the vessel is ranked by what it follows now."""
-    old_then_new = np.r_[np.full(20, 0.01), np.full(5, 0.8)]
-    ages = np.r_[np.full(20, 200.0), np.zeros(5)]
-    config = _evidence_config(evidence_half_life_s=30.0)
-    assert config.trajectory_score(old_then_new, 100.0, 0, 0) < 0  # no ages: no forgetting
-    assert config.trajectory_score(old_then_new, 100.0, 0, 0, ages=ages) > 0
-    assert trajectory_score([0.8, 0.8], 100.0, mode="evidence", weights=[1.0, 0.5]) == pytest.approx(
-        1.5 * math.log(4.0) * math.log(100.0))
-    with pytest.raises(DataError, match="weights"):
-        trajectory_score([0.8, 0.8], 100.0, mode="evidence", weights=[1.0])
-
-
-@pytest.mark.parametrize("field", ["recent_evidence_s", "evidence_half_life_s"])
 @pytest.mark.parametrize("value", [-1.0, math.nan, math.inf])
-def test_evidence_windows_are_validated(field, value):
-    with pytest.raises(DataError, match=field):
-        SelectionConfig(**{field: value})
+def test_the_recent_evidence_window_is_validated(value):
+    with pytest.raises(DataError, match="recent_evidence_s"):
+        paper_selection(recent_evidence_s=value)
 
 
 def test_a_history_is_continued_only_by_a_track_that_looks_the_same_way():
@@ -464,7 +441,7 @@ def test_the_track_dropped_for_its_boxes_does_not_take_the_role_back_with_one_go
 
 def test_a_reacquired_track_must_be_eligible_as_any_target():
     """With the paper's path factor (floor 0) a track that has not moved scores 0: never a target, never retaken."""
-    config = SelectionConfig(confidence_score="evidence", positive_evidence_only=True, recent_evidence_s=8.0,
+    config = paper_selection(confidence_score="evidence", positive_evidence_only=True, recent_evidence_s=8.0,
                              reacquire_recent_evidence=2.0)
     selector = OnlineTargetSelector(config)
     published = [selector.update(4.0 * k, [_wt("S", [300, 0], conf=0.95)]) for k in range(6)]
@@ -486,7 +463,7 @@ def test_reacquire_recent_evidence_needs_its_window():
     with pytest.raises(DataError, match="recent_evidence_s > 0"):
         _evidence_config(reacquire_recent_evidence=2.0)
     with pytest.raises(DataError, match="confidence_score: evidence"):
-        SelectionConfig(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)
+        paper_selection(recent_evidence_s=8.0, reacquire_recent_evidence=2.0)
 
 
 def _far_vessel_judged_another_boat(config):

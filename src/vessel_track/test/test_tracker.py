@@ -155,13 +155,18 @@ def _far_track_then_two_boxes(config: TrackerConfig) -> float:
     return float(states[tid].measured_size[1])
 
 
+ONE_SIZE_MODEL = {"height_log_std": 0.0, "height_log_std_rate": 0.0}
+"""The tracker's association with one size model for width and height (the paper's)."""
+
+
 def test_a_tight_height_model_keeps_a_track_off_a_much_lower_box():
     """With ``height_log_std`` a track takes the box of its own height, not a much lower one nearer its prediction.
 
     The width varies with the heading, the height with the range only.
     """
-    assert _far_track_then_two_boxes(TrackerConfig()) == pytest.approx(9.6)
-    assert _far_track_then_two_boxes(TrackerConfig(height_log_std=0.15)) == pytest.approx(16.0)
+    assert _far_track_then_two_boxes(TrackerConfig(**ONE_SIZE_MODEL)) == pytest.approx(9.6)
+    assert _far_track_then_two_boxes(TrackerConfig(height_log_std=0.15, height_log_std_rate=0.0)) == \
+        pytest.approx(16.0)
 
 
 @pytest.mark.parametrize("dt, height_px, taken", [(0.04, 120.0, False), (4.0, 120.0, True), (4.0, 12.0, False)])
@@ -199,19 +204,19 @@ def test_without_the_height_parameters_the_costs_are_those_of_one_size_model():
 
     The size term is sum((ln ratio / size_log_std)^2) and the clutter cost's size part -2 ln(2 pi size_log_std^2).
     """
-    config = TrackerConfig()
+    config = TrackerConfig(**ONE_SIZE_MODEL)
     cost, clutter, tracks, sizes = _two_tracks_and_three_boxes(config)
-    one_model, _, _, _ = _two_tracks_and_three_boxes(TrackerConfig(size_weight=0.0))
+    one_model, _, _, _ = _two_tracks_and_three_boxes(TrackerConfig(**ONE_SIZE_MODEL, size_weight=0.0))
     ratio = np.log(sizes[None, :, :] / np.array([t.size for t in tracks])[:, None, :])
     size_term = np.sum((ratio / config.size_log_std) ** 2, axis=2)
     admissible = cost < 1e8
     np.testing.assert_allclose(cost[admissible], (one_model + size_term)[admissible], rtol=1e-9)
-    clutter_without_size = MultiTargetTracker(TrackerConfig(size_weight=0.0))._clutter_cost()
+    clutter_without_size = MultiTargetTracker(TrackerConfig(**ONE_SIZE_MODEL, size_weight=0.0))._clutter_cost()
     expected = clutter_without_size + 4.0 * math.log(math.log(10.0)) - 2.0 * math.log(
         2.0 * math.pi * config.size_log_std**2)
     assert clutter == pytest.approx(expected, rel=1e-12)
     # A height model of its own: the clutter's height density is spread over the same decade, normalised by it.
-    own_height = MultiTargetTracker(TrackerConfig(height_log_std=0.2))._clutter_cost()
+    own_height = MultiTargetTracker(TrackerConfig(height_log_std=0.2, height_log_std_rate=0.0))._clutter_cost()
     assert own_height == pytest.approx(expected + math.log(config.size_log_std**2 / 0.2**2), rel=1e-12)
 
 
@@ -220,7 +225,8 @@ def test_a_grown_height_model_pays_its_normaliser():
 
     The normaliser keeps a track whose model has grown from taking any box for free.
     """
-    base, _, tracks, sizes = _two_tracks_and_three_boxes(TrackerConfig(height_log_std=0.2, max_size_ratio=0.0,
+    base, _, tracks, sizes = _two_tracks_and_three_boxes(TrackerConfig(height_log_std=0.2, height_log_std_rate=0.0,
+                                                                       max_size_ratio=0.0,
                                                                        clutter_density_per_mpx=0.0))
     grown, _, _, _ = _two_tracks_and_three_boxes(TrackerConfig(height_log_std=0.2, height_log_std_rate=0.01,
                                                                max_size_ratio=0.0, clutter_density_per_mpx=0.0))

@@ -17,8 +17,8 @@ VALIDATION_VIDEOS = (13, 14, 15, 16, 17)
 
 
 def _dataset():
-    from vessel_tools.calib.dataset import Dataset
     from vessel_common.paths import default_data_dir
+    from vessel_tools.calib.dataset import Dataset
 
     root = default_data_dir()
     if root is None or not (root / "screen_labels.csv").exists():

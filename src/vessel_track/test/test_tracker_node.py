@@ -147,11 +147,13 @@ def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
 def test_every_tracker_config_field_is_a_described_parameter():
     from dataclasses import fields
 
+    from vessel_track.parameter_tables import TRACKER_PARAMETERS
     from vessel_track.tracker import TrackerConfig
-    from vessel_track.tracker_node import TRACKER_PARAMETERS
 
-    assert set(TRACKER_PARAMETERS) == {f.name for f in fields(TrackerConfig)}
-    assert all(description.strip() for description, _ in TRACKER_PARAMETERS.values())
+    assert {f.name for f in fields(TrackerConfig)} <= set(TRACKER_PARAMETERS.names)
+    assert all(param.description.strip() for param in TRACKER_PARAMETERS)
+    defaults = TrackerConfig()
+    assert all(TRACKER_PARAMETERS[f.name].default == getattr(defaults, f.name) for f in fields(TrackerConfig))
 
 
 def test_every_vessel_is_tracked_and_its_confidence_is_the_target_hypothesis():
@@ -221,3 +223,98 @@ def test_a_standby_tracker_publishes_only_once_promoted(start_node, driver, ask_
     result = ask_service(setter, SetParameters.Request(parameters=[back]), spin_until).results[0]
     assert not result.successful and "a promoted node stays active" in result.reason
     assert tracker.stop() == 0
+
+
+def test_a_parameter_change_is_applied_live_or_refused(monkeypatch, ros_context):
+    """``ros2 param set`` on a running tracker: a live setting takes effect, a bad or read-only one is refused."""
+    from vessel_fixtures.ros_nodes import node_in_context, set_parameter
+
+    pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
+    from vessel_track.tracker_node import TrackerNode
+
+    node = node_in_context(monkeypatch, ros_context, TrackerNode)
+    try:
+        assert set_parameter(node, "min_score", 0.95).successful
+        assert node.tracker.config.min_score == 0.95
+        node.tracker.update(1.0, np.array([[100.0, 100.0, 140.0, 120.0]]), np.array([0.9]))
+        assert node.tracker.track_ids == []  # the 0.9 box is below the new min_score
+        refused = set_parameter(node, "gate_px", 100.0), set_parameter(node, "max_gate_px", 50.0)
+        assert refused[0].successful and not refused[1].successful and "max_gate_px" in refused[1].reason
+        assert node.get_parameter("max_gate_px").value == node.tracker.config.max_gate_px != 50.0
+        for name, value in (("input_topic", "/elsewhere"), ("history_length", 5)):
+            result = set_parameter(node, name, value)
+            assert not result.successful and "read-only" in result.reason
+        assert not set_parameter(node, "association", "nearest").successful
+        assert set_parameter(node, "classes", ["boat"]).successful and node.classes == frozenset({"boat"})
+    finally:
+        node.destroy_node()
+
+
+class _CreatesAFileWhenUnpickled:
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return open, (self.path, "w")
+
+
+class _Lines:
+    """A node's logger that keeps what it is given: ``lines`` of (level, message)."""
+
+    def __init__(self):
+        self.lines: list[tuple[str, str]] = []
+
+    def __getattr__(self, level):
+        return lambda message, **kwargs: self.lines.append((level, str(message)))
+
+
+def test_a_restarted_tracker_refuses_a_pickled_state_file_and_carries_on_from_its_own(monkeypatch, ros_context,
+                                                                                        tmp_path):
+    """A pickle at ``state_file`` (the old format, or crafted to run code) is never loaded: one warning, a cold start.
+
+    The snapshots the node then writes are JSON; a tracker restarted on them publishes what one never stopped does.
+    """
+    import pickle
+
+    from rclpy.parameter import Parameter
+    from vessel_fixtures.ros_nodes import node_in_context
+
+    from vessel_common.state_file import VERSION
+    from vessel_tools.track.simulation import harbour_scenario
+    from vessel_track.tracker_node import TrackerNode
+
+    marker, path = tmp_path / "created_by_the_pickle", tmp_path / "tracker.state"
+    path.write_bytes(pickle.dumps({"format": "vessel_state/1", "state": _CreatesAFileWhenUnpickled(marker)}))
+    frames = harbour_scenario(seed=3).run().frames
+    half = len(frames) // 2
+
+    def run(frames, state_file):
+        overrides = [Parameter("state_file", value=state_file), Parameter("state_period_s", value=0.0)]
+        with monkeypatch.context() as patch:  # one process, one node after the other
+            node = node_in_context(patch, ros_context, TrackerNode, overrides)
+            log, published = _Lines(), []
+            patch.setattr(node, "get_logger", lambda: log)
+            patch.setattr(node.publisher, "publish", published.append)
+            try:
+                for frame in frames:
+                    node.on_detections(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
+                tracks = [[(t.id, t.status, round(t.bbox.center.position.x, 6)) for t in m.tracks] for m in published]
+                return tracks, log.lines, node.health.counts, node.tracker.config.max_tracks
+            finally:
+                node.destroy_node()
+
+    straight, _, _, max_tracks = run(frames, "")
+    before, lines, counts, _ = run(frames[:half], str(path))
+    assert not marker.exists()
+    refused = [message for _, message in lines if "state file" in message]
+    assert len(refused) == 1 and counts.get("state_file_refused") == 1, lines
+    assert refused[0].startswith(f"state file {path} is not a tracker state file of version {VERSION}: it is a pickle")
+    assert "; cold start" in refused[0] and before == straight[:half]  # cold: as if there were no file
+    after, lines, counts, _ = run(frames[half:], str(path))  # the restart, on the JSON snapshot the first one wrote
+    assert counts.get("resumed_from_state_file") == 1 and "state_file_refused" not in counts, lines
+    known = {track_id for frame in before for track_id, _, _ in frame}
+
+    def renumbered(track_id):  # a restarted tracker numbers new tracks max_tracks further on
+        return track_id if track_id in known else f"T{int(track_id[1:]) - max_tracks}"
+
+    assert [[(renumbered(i), *rest) for i, *rest in frame] for frame in after] == straight[half:]

@@ -17,19 +17,14 @@ import numpy as np
 from rclpy.node import Node
 
 from vessel_calib.camera_parameters import declare_camera_model
-from vessel_common.node_support import (
-    NodeHealth,
-    NodeState,
-    Standby,
-    declare_parameter,
-    reliable_qos,
-    stamp_to_sec,
-)
+from vessel_common.node_parameters import declare_table
+from vessel_common.node_support import NodeHealth, NodeState, Standby, reliable_qos, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
 from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
-from vessel_track.node_params import FUSER_TOPICS, declare_fuser_settings, main_with_checks
+from vessel_track.node_params import fuser_settings_of, main_with_checks, refuse_moved_parameters
+from vessel_track.parameter_tables import FUSER_PARAMETERS
 
 #: last_seen within this of the frame stamp means the track was updated in this frame.
 UPDATED_TOLERANCE_S = 1e-6
@@ -126,11 +121,10 @@ class FuserNode(Node):
     def __init__(self):
         super().__init__("fuser")
         self.camera = declare_camera_model(self)
-        self.settings = declare_fuser_settings(self)
-        input_topic = declare_parameter(self, "input_topic", *FUSER_TOPICS["input_topic"])
-        output_topic = declare_parameter(self, "output_topic", *FUSER_TOPICS["output_topic"])
-        depth = declare_parameter(self, "qos_depth", *FUSER_TOPICS["qos_depth"], int_range=(1, 1000))
-        s = self.settings
+        refuse_moved_parameters(self)
+        values = declare_table(self, FUSER_PARAMETERS, apply=self._apply_parameters)
+        self.settings = s = fuser_settings_of(values)
+        input_topic, output_topic, depth = values["input_topic"], values["output_topic"], values["qos_depth"]
         water_level = s.water_level.load()
         self.core = TrackFuser(self.camera, s.distance_model, s.fusion, s.cue_stats, s.motion, s.selection,
                                s.error_model, water_level=water_level, water_level_max_hold_s=s.water_level.max_hold_s)
@@ -149,6 +143,14 @@ class FuserNode(Node):
             f"{100 * s.error_model.slope:.2f} m/100 m" + (
                 f"; tide from {water_level.source} (camera {self.camera.height_m:.2f} m above the sea at "
                 f"{self.camera.water_level_m:.2f} m)" if water_level is not None else ""))
+
+    def _apply_parameters(self, values) -> None:
+        """A live change of the distance model, the fusion or the error model, used from the next frame on."""
+        self.settings = settings = fuser_settings_of(values)
+        self.core.distance_model = settings.distance_model
+        self.core.fusion_config = settings.fusion
+        self.core.cue_stats = settings.cue_stats
+        self.core.error_model = settings.error_model
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
         """Fuse one image's tracks and publish them with their world state."""

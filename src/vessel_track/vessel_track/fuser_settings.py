@@ -57,8 +57,8 @@ class OfflineConfig:
     outlier_threshold_px: float = 5.0
     iterations: int = 5
     adaptive_noise: bool = True
-    target: str = "joined"
-    max_gap_s: float = 0.0
+    target: str = "online"
+    max_gap_s: float = 34.0
 
     def __post_init__(self) -> None:
         """Validate."""

@@ -27,9 +27,10 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_common.errors import CalibrationError, DataError
+from vessel_common.state_file import fields_of, object_state, restore_object, set_fields
 from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_scale
 from vessel_track.error_model import ErrorModel
-from vessel_track.selection import OnlineTargetSelector, SelectionConfig
+from vessel_track.selection import OnlineTargetSelector, SelectionConfig, _Running
 from vessel_track.smoothing import FilterOutput, MotionConfig, WorldKalmanFilter
 
 WEIGHT_MODES = ("fitted", "paper", "position_only")
@@ -41,8 +42,6 @@ SCREEN_SOURCES = ("measured", "filtered")
 DEFAULT_CUE_COVARIANCE = (5.7147051439, -4.8621659687, -4.9854487734, -4.8621659687, 68.5918439092, 48.7700666298,
                           -4.9854487734, 48.7700666298, 54.709869639)
 PAPER_WEIGHTS = (0.5, 0.25, 0.25)
-#: Chi-square (2 dof, 99 %) below which a box's size cues agree with its position cue.
-SIZE_CONSISTENCY_CHI2 = 9.21
 #: measured boxes of a track whose median aspect a new box is compared with (``FusionConfig.shape_jump_ratio``)
 SHAPE_HISTORY = 5
 #: measured boxes of a track whose median height a new box is compared with (``FusionConfig.height_drop_ratio``;
@@ -206,12 +205,6 @@ class FusedBoxes:
     fused_y_std: np.ndarray    # (N,) its standard deviation, ideal px
     weights: np.ndarray        # (N, 3) weights used
     screen: np.ndarray         # (N, 2) the fused point on screen (px)
-    size_chi2: np.ndarray = None  # (N,) disagreement of the size cues with the position cue (NaN: no size cue)
-
-    @property
-    def size_consistent(self) -> np.ndarray:
-        """(N,) the box's size agrees with its position for a vessel of the fitted size (chi-square 2 dof, 99 %)."""
-        return np.asarray(self.size_chi2, dtype=float) <= SIZE_CONSISTENCY_CHI2
 
     @property
     def distance_m(self) -> np.ndarray:
@@ -303,20 +296,7 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
     screen = np.column_stack([np.asarray(xs, dtype=float).reshape(-1), np.asarray(ys, dtype=float).reshape(-1)])
     screen[~valid] = np.nan
     return FusedBoxes(world, covariance, valid, reason, xp, cue_y, np.where(valid, fused_y, np.nan),
-                      np.sqrt(var_y), weights, screen, size_disagreement_chi2(cue_y, stats.covariance))
-
-
-def size_disagreement_chi2(cue_y: np.ndarray, covariance: np.ndarray) -> np.ndarray:
-    """Per box: chi-square of the differences (width cue - position cue, height cue - position cue).
-
-    The distance model describes the vessel of interest's size, so a box whose size says "much nearer" or
-    "much further" than its position is likely another vessel (a sailboat's mast, a ferry) or clutter. NaN when a
-    size cue is missing.
-    """
-    D = np.array([[-1.0, 1.0, 0.0], [-1.0, 0.0, 1.0]])
-    S_inv = np.linalg.inv(D @ covariance @ D.T)
-    d = np.asarray(cue_y, dtype=float).reshape(-1, 3) @ D.T
-    return np.einsum("ni,ij,nj->n", d, S_inv, d)
+                      np.sqrt(var_y), weights, screen)
 
 
 def boxes_from_centers(centers, sizes) -> np.ndarray:
@@ -422,7 +402,6 @@ class WorldTrack:
     measured_position: np.ndarray | None = None   # this frame's fused (unfiltered) position, if any
     measured_covariance: np.ndarray | None = None
     measured_screen: np.ndarray | None = None     # the fused point on screen, px
-    size_consistent: bool | None = None           # this frame's box size agrees with the fitted vessel size
     rejected_reason: str = ""                     # why this frame's box gave no position ("" if it did)
 
 
@@ -475,14 +454,34 @@ class TrackFuser:
         self.last_stamp = None
 
     def snapshot(self) -> dict:
-        """The world filters and selection history ``restore`` needs to carry on in another process (picklable)."""
-        return {"filters": self.filters, "ended_filters": self._ended_filters, "shapes": self._shapes,
-                "selector": self.selector, "last_stamp": self.last_stamp}
+        """The world filters and selection history ``restore`` needs to carry on in another process, as plain data.
+
+        Numbers, strings, containers and numpy arrays only: what a state file holds (``vessel_common.state_file``).
+        Each world filter and the selector by its attributes, except the settings (the restored fuser's own).
+        """
+        def filters(by_id: dict) -> dict:
+            return {track_id: fields_of(kf, skip=("config",)) for track_id, kf in by_id.items()}
+
+        return {"filters": filters(self.filters), "ended_filters": filters(self._ended_filters),
+                "shapes": {track_id: list(shapes) for track_id, shapes in self._shapes.items()},
+                "selector": object_state(self.selector, _Running, skip=("config",)), "last_stamp": self.last_stamp}
 
     def restore(self, snapshot: dict) -> None:
-        """Carry on from ``snapshot()`` of a fuser with the same settings (a node restarted after a crash)."""
-        restored = (dict(snapshot["filters"]), dict(snapshot["ended_filters"]), dict(snapshot["shapes"]),
-                    snapshot["selector"], snapshot["last_stamp"])
+        """Carry on from ``snapshot()`` of a fuser with the same settings (a node restarted after a crash).
+
+        ValueError (KeyError, TypeError) for a snapshot with other fields than this version's: the fuser is then
+        left as it was.
+        """
+        def filters(by_id: dict) -> dict:
+            return {str(track_id): set_fields(WorldKalmanFilter(self.motion_config), fields, "a world filter",
+                                              skip=("config",)) for track_id, fields in dict(by_id).items()}
+
+        shapes = {str(track_id): deque(((float(aspect), float(height)) for aspect, height in history),
+                                       maxlen=SHAPE_HISTORY) for track_id, history in dict(snapshot["shapes"]).items()}
+        selector = restore_object(OnlineTargetSelector(self.selector.config), snapshot["selector"], _Running,
+                                  "the target selection", skip=("config",))
+        restored = (filters(snapshot["filters"]), filters(snapshot["ended_filters"]), shapes, selector,
+                    None if snapshot["last_stamp"] is None else float(snapshot["last_stamp"]))
         self.filters, self._ended_filters, self._shapes, self.selector, self.last_stamp = restored
 
     def update(self, stamp: float, tracks: list[ScreenTrack]) -> list[WorldTrack]:
@@ -532,8 +531,6 @@ class TrackFuser:
                     wt.measured_position = fused.world[i].copy()
                     wt.measured_covariance = fused.covariance[i] * self._shape_factor(track)
                     wt.measured_screen = fused.screen[i].copy()
-                    chi2 = float(fused.size_chi2[i])
-                    wt.size_consistent = None if not math.isfinite(chi2) else bool(chi2 <= SIZE_CONSISTENCY_CHI2)
                     result = kf.update(stamp, fused.world[i], wt.measured_covariance)
                     if result is not None and not result.accepted and not result.restarted:
                         self._count("outlier_rejected")

@@ -27,12 +27,13 @@ from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from vessel_calib import geodesy
 from vessel_calib.camera_parameters import declare_camera_model
-from vessel_common.node_support import NodeHealth, Standby, declare_parameter, reliable_qos, stamp_to_sec
+from vessel_common.node_parameters import declare_table
+from vessel_common.node_support import NodeHealth, Standby, reliable_qos, stamp_to_sec
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
-from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, MAX_COAST_RANGE_S, main_with_checks
+from vessel_track.node_params import main_with_checks
+from vessel_track.parameter_tables import GPS_PUBLISHER_PARAMETERS
 
-COVARIANCE_MODES = ("sum", "filter", "error_model", "max")
 STATUS_LOST = 3
 MAX_TARGET_DISTANCE_M = 1.0e5
 """A target farther than this from the camera is a calibration or fuser fault, never a fix."""
@@ -141,32 +142,10 @@ class GpsPublisherNode(Node):
         # The calibration is read (and so validated) like in every node; its camera position is the origin
         # against which implausible target positions are caught.
         self.camera = declare_camera_model(self)
-        spec = GPS_PUBLISHER_PARAMETERS
-
-        def param(name, **kw):
-            default, description = spec[name]
-            return declare_parameter(self, name, default, description, **kw)
-
-        input_topic = param("input_topic")
-        fix_topic = param("fix_topic")
-        fixes_topic = param("fixes_topic")
-        self.frame_id = param("frame_id")
-        self.max_coast_s = param("max_coast_s", float_range=MAX_COAST_RANGE_S)
-        self.covariance_mode = param("covariance_mode", additional_constraints="one of sum, filter, error_model, max")
-        covariance_type = param("covariance_type", additional_constraints="known or approximated")
-        self.altitude_m = param("altitude_m")
-        self.altitude_variance_m2 = param("altitude_variance_m2", float_range=(0.0, 1e12))
-        self.publish_no_fix = param("publish_no_fix")
-        depth = param("qos_depth", int_range=(1, 1000))
-        from vessel_common.errors import DataError
-
-        if self.covariance_mode not in COVARIANCE_MODES:
-            raise DataError(f"gps_publisher: covariance_mode must be one of {', '.join(COVARIANCE_MODES)}, got "
-                            f"{self.covariance_mode!r}")
-        if covariance_type not in ("known", "approximated"):
-            raise DataError(f"gps_publisher: covariance_type must be known or approximated, got {covariance_type!r}")
-        self.covariance_type = (NavSatFix.COVARIANCE_TYPE_KNOWN if covariance_type == "known"
-                                else NavSatFix.COVARIANCE_TYPE_APPROXIMATED)
+        values = declare_table(self, GPS_PUBLISHER_PARAMETERS, apply=self._apply_parameters)
+        self._apply_parameters(values)
+        input_topic, fix_topic, fixes_topic = values["input_topic"], values["fix_topic"], values["fixes_topic"]
+        depth = values["qos_depth"]
         self.health = NodeHealth(self)
         self.standby = Standby(self)
         self._origin = ((self.camera.camera_lat, self.camera.camera_lon)
@@ -180,6 +159,17 @@ class GpsPublisherNode(Node):
                                                      reliable_qos(depth))
         self.get_logger().info(f"gps_publisher: {input_topic} -> {fix_topic} (frame_id {self.frame_id!r}), "
                                f"{fixes_topic or 'no all-vessel output'}")
+
+    def _apply_parameters(self, values) -> None:
+        """The output settings, at start and on a live change (the table has checked ranges and choices)."""
+        self.frame_id = values["frame_id"]
+        self.max_coast_s = values["max_coast_s"]
+        self.covariance_mode = values["covariance_mode"]
+        self.covariance_type = (NavSatFix.COVARIANCE_TYPE_KNOWN if values["covariance_type"] == "known"
+                                else NavSatFix.COVARIANCE_TYPE_APPROXIMATED)
+        self.altitude_m = values["altitude_m"]
+        self.altitude_variance_m2 = values["altitude_variance_m2"]
+        self.publish_no_fix = values["publish_no_fix"]
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
         """Publish the target's fix and the array of every vessel for one image."""

@@ -41,8 +41,7 @@ class SelectionConfig:
     confidence_percentile: percentile of the detector confidences in the score (the paper: 80). 50 (the median)
         by default: chosen on training videos 7-12 with the appearance cue as confidence
         (``vessel_tools.track.appearance``), where a track that swapped onto the vessel of interest for a few frames
-        must not inherit its high confidences (leave-one-video-out, probability as confidence, boxes below 0.3
-        dropped: offline 28 m/100 m at 50 against 50 at 80; online 43 against 42).
+        must not inherit its high confidences.
     min_step_m: path steps shorter than this are not added (filters jitter of a standing object).
     path_noise_sigmas: a path step counts once the displacement from the last counted point exceeds this many
         standard deviations of it (from the position covariances), so position noise does not count as travel
@@ -61,11 +60,6 @@ class SelectionConfig:
     reacquire_window_s: how long that rule holds (default 30 s, the join gap). Long (the challenge config: an
         hour) means no stand-in: the GPS publisher sends NO_FIX rather than another boat as the vessel of interest
         until a track has earned the lost one's share of evidence.
-    size_consistency: multiply the score by the share of the trajectory's boxes whose size agrees with their
-        position for a vessel of the fitted size (Laplace-smoothed: (k + 1) / (n + 2); a negative score is
-        divided by it). The distance model is
-        fitted to the vessel of interest, so sailboats, ferries and clutter agree less often; with a detector
-        that is not trained on the vessel of interest this is most of what tells it apart.
     history_length: confidences kept per track for the percentile.
     confidence_score: how a trajectory's confidences enter its score: ``percentile`` (the paper's
         ``confidence_percentile`` of them) or ``evidence``, the sum of their log-odds ``log(c / (1 - c))``, each
@@ -99,10 +93,6 @@ class SelectionConfig:
         guess, and NO_FIX is safer than another boat published as the vessel. Online only.
     appearance_joins: with the ``evidence`` score, an ended track's history is continued (online join) only by a
         track whose first box looks the same way (both likely the vessel of interest, or both not). Online only.
-    evidence_half_life_s: with the ``evidence`` score, each confidence's log-odds counts
-        ``0.5 ** (age / evidence_half_life_s)`` (0: no forgetting). A track that followed another boat and then
-        moved onto the vessel of interest (or the other way round) is ranked by what it follows now, not by a
-        history that belongs to another boat. Online only.
     path_log_floor: the path factor is ``max(log(max(l, 1)), path_log_floor)``. The paper's 0 makes every track
         without significant motion yet score 0, so among them the first one established stays the target
         however unlike the vessel it looks; 1 (a path of e metres) lets the confidences rank them while any
@@ -122,18 +112,16 @@ class SelectionConfig:
     switch_margin: float = 0.3
     switch_hold_s: float = 8.0
     reacquire_fraction: float = 0.9
-    reacquire_window_s: float = 30.0
-    size_consistency: bool = False
+    reacquire_window_s: float = 3600.0
     history_length: int = 1000
-    confidence_score: str = "percentile"
+    confidence_score: str = "evidence"
     evidence_clip: float = 4.0
-    path_log_floor: float = 0.0
-    positive_evidence_only: bool = False
-    recent_evidence_s: float = 0.0
-    reacquire_recent_evidence: float = 0.0
-    reacquire_waits_for_dropped_track: bool = False
-    evidence_half_life_s: float = 0.0
-    appearance_joins: bool = False
+    path_log_floor: float = 1.0
+    positive_evidence_only: bool = True
+    recent_evidence_s: float = 24.0
+    reacquire_recent_evidence: float = 2.0
+    reacquire_waits_for_dropped_track: bool = True
+    appearance_joins: bool = True
 
     def recent_evidence_ok(self, confidences, ages) -> bool:
         """Whether the confidences of the last ``recent_evidence_s`` still say the vessel of interest.
@@ -197,10 +185,10 @@ class SelectionConfig:
         if not (isinstance(threshold, int | float) and math.isfinite(threshold) and threshold >= 0):
             raise DataError(f"selection: reacquire_recent_evidence must be a finite number of log-odds >= 0 (0: off), "
                             f"got {threshold!r}")
-        for name in ("recent_evidence_s", "evidence_half_life_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise DataError(f"selection: {name} must be a finite number of seconds >= 0 (0: off), got {value!r}")
+        value = self.recent_evidence_s
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+            raise DataError(f"selection: recent_evidence_s must be a finite number of seconds >= 0 (0: off), got "
+                            f"{value!r}")
         recent_window = self.recent_evidence_s > 0 and self.confidence_score == "evidence"
         for name, is_on, why, off in (
                 ("reacquire_recent_evidence", threshold > 0, "it sums the confidences of that window", "to 0"),
@@ -210,18 +198,10 @@ class SelectionConfig:
                 raise DataError(f"selection: {name} needs confidence_score: evidence and recent_evidence_s > 0 "
                                 f"({why}); set them, or set {name} {off}")
 
-    def trajectory_score(self, confidences, path_m: float, consistent: int, known: int, ages=None) -> float:
-        """``trajectory_score`` with this configuration.
-
-        ``consistent`` of ``known`` boxes are size-consistent; ``ages``, seconds before now of each confidence,
-        serve ``evidence_half_life_s``.
-        """
-        weights = None
-        if ages is not None and self.evidence_half_life_s > 0:
-            weights = 0.5 ** (np.maximum(np.asarray(ages, dtype=float), 0.0) / self.evidence_half_life_s)
-        return trajectory_score(confidences, path_m, self.confidence_percentile,
-                                consistent if self.size_consistency else None, known, self.confidence_score,
-                                self.evidence_clip, self.path_log_floor, weights)
+    def trajectory_score(self, confidences, path_m: float) -> float:
+        """``trajectory_score`` with this configuration."""
+        return trajectory_score(confidences, path_m, self.confidence_percentile, self.confidence_score,
+                                self.evidence_clip, self.path_log_floor)
 
 
 def clipped_log_odds(confidences, clip: float) -> np.ndarray:
@@ -273,35 +253,22 @@ def significant_step(p0, p1, cov0, cov1, noise_sigmas: float) -> float:
     return length if length > noise_sigmas * math.sqrt(variance) else 0.0
 
 
-def trajectory_score(confidences, path_m: float, percentile: float = 80.0, consistent: int | None = None,
-                     known: int = 0, mode: str = "percentile", evidence_clip: float = 4.0,
-                     path_log_floor: float = 0.0, weights=None) -> float:
+def trajectory_score(confidences, path_m: float, percentile: float = 80.0, mode: str = "percentile",
+                     evidence_clip: float = 4.0, path_log_floor: float = 0.0) -> float:
     """The paper's ``c_0.8 * log(l)`` with ``log(max(l, 1))``; 0 for no confidences.
 
     ``mode="evidence"`` replaces ``c_0.8`` by the sum of the confidences' clipped log-odds
-    (``SelectionConfig.confidence_score``), each times its entry of ``weights`` when given (forgetting);
-    ``path_log_floor`` bounds the path factor from below. With
-    ``consistent`` given: times ``(consistent + 1) / (known + 2)``, the smoothed share of boxes whose size agrees
-    with the fitted vessel size (``SelectionConfig.size_consistency``); a negative evidence score is divided by
-    it instead, so boxes of the wrong size always lower a score.
+    (``SelectionConfig.confidence_score``); ``path_log_floor`` bounds the path factor from below.
     """
     c = np.asarray(confidences, dtype=float).reshape(-1)
-    w = np.ones_like(c) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
-    if w.shape != c.shape:
-        raise DataError(f"trajectory_score: {w.size} weights for {c.size} confidences")
-    finite = np.isfinite(c)
-    c, w = c[finite], w[finite]
+    c = c[np.isfinite(c)]
     if c.size == 0 or not math.isfinite(path_m):
         return 0.0
     if mode == "evidence":
-        confidence = float(np.sum(w * clipped_log_odds(c, evidence_clip)))
+        confidence = float(np.sum(clipped_log_odds(c, evidence_clip)))
     else:
         confidence = float(np.percentile(c, percentile))
-    score = confidence * max(math.log(max(path_m, 1.0)), path_log_floor)
-    if consistent is not None:
-        share = (consistent + 1.0) / (known + 2.0)
-        score = score * share if score >= 0 else score / share
-    return score
+    return confidence * max(math.log(max(path_m, 1.0)), path_log_floor)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -317,7 +284,6 @@ class Trajectory:
     positions: np.ndarray       # (N, 2) metres
     confidences: np.ndarray     # (N,)
     members: list[str] = field(default_factory=list)
-    consistent: np.ndarray | None = None   # (N,) 1 / 0: box size agrees with the fitted vessel size, NaN unknown
     covariances: np.ndarray | None = None  # (N, 2, 2) position covariances, m^2 (for the significant path)
 
     def __post_init__(self) -> None:
@@ -325,20 +291,18 @@ class Trajectory:
         self.stamps = np.asarray(self.stamps, dtype=float).reshape(-1)
         self.positions = np.asarray(self.positions, dtype=float).reshape(-1, 2)
         self.confidences = np.asarray(self.confidences, dtype=float).reshape(-1)
-        self.consistent = (np.full(self.stamps.size, np.nan) if self.consistent is None
-                           else np.asarray(self.consistent, dtype=float).reshape(-1))
         if self.covariances is not None:
             self.covariances = np.asarray(self.covariances, dtype=float).reshape(-1, 2, 2)
             if self.covariances.shape[0] != self.stamps.size:
                 raise DataError(f"trajectory {self.track_id}: {self.covariances.shape[0]} covariances for "
                                 f"{self.stamps.size} points")
-        if not (self.stamps.size == self.positions.shape[0] == self.confidences.size == self.consistent.size):
+        if not (self.stamps.size == self.positions.shape[0] == self.confidences.size):
             raise DataError(f"trajectory {self.track_id}: stamps, positions and confidences differ in length")
         if self.stamps.size == 0:
             raise DataError(f"trajectory {self.track_id}: no points")
         order = np.argsort(self.stamps, kind="stable")
         self.stamps, self.positions = self.stamps[order], self.positions[order]
-        self.confidences, self.consistent = self.confidences[order], self.consistent[order]
+        self.confidences = self.confidences[order]
         if self.covariances is not None:
             self.covariances = self.covariances[order]
         if not self.members:
@@ -361,9 +325,7 @@ class Trajectory:
     def score(self, config: SelectionConfig | None = None) -> float:
         """The paper's trajectory score."""
         config = config or SelectionConfig()
-        known = np.isfinite(self.consistent)
-        return config.trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas),
-                                       int(np.sum(self.consistent[known] > 0.5)), int(known.sum()))
+        return config.trajectory_score(self.confidences, self.path_length(config.min_step_m, config.path_noise_sigmas))
 
     def end_velocity(self, window_s: float = 20.0) -> np.ndarray:
         """Velocity (m/s) over the last ``window_s`` seconds (least squares); zeros with one point."""
@@ -421,9 +383,7 @@ def concatenate(first: Trajectory, second: Trajectory) -> Trajectory:
     return Trajectory(first.track_id, np.concatenate([first.stamps[keep], second.stamps]),
                       np.concatenate([first.positions[keep], second.positions]),
                       np.concatenate([first.confidences[keep], second.confidences]),
-                      members=first.members + second.members,
-                      consistent=np.concatenate([first.consistent[keep], second.consistent]),
-                      covariances=covariances)
+                      members=first.members + second.members, covariances=covariances)
 
 
 def join_trajectories(trajectories: list[Trajectory], config: SelectionConfig | None = None) -> list[Trajectory]:
@@ -505,15 +465,12 @@ class _Running:
     established: bool = False
     inherited_from: str = ""
     excluded_heir: str = ""   # the track that may not take this history back (it moved onto another boat)
-    consistent: int = 0
-    known: int = 0
 
     def ages(self, now: float) -> np.ndarray:
         return now - np.fromiter(self.confidence_stamps, float)
 
-    def score(self, config: SelectionConfig, now: float) -> float:
-        return config.trajectory_score(np.fromiter(self.confidences, float), self.path_m, self.consistent, self.known,
-                                       self.ages(now))
+    def score(self, config: SelectionConfig) -> float:
+        return config.trajectory_score(np.fromiter(self.confidences, float), self.path_m)
 
     def recent_evidence_ok(self, config: SelectionConfig, now: float) -> bool:
         return config.recent_evidence_ok(np.fromiter(self.confidences, float), self.ages(now))
@@ -522,11 +479,9 @@ class _Running:
         return config.recent_evidence(np.fromiter(self.confidences, float), self.ages(now))
 
     def append_evidence(self, later: _Running) -> None:
-        """Add the confidences and size counts of a later piece of the same vessel's track after this history's."""
+        """Add the confidences of a later piece of the same vessel's track after this history's."""
         self.confidences.extend(later.confidences)
         self.confidence_stamps.extend(later.confidence_stamps)
-        self.consistent += later.consistent
-        self.known += later.known
 
     def forget_before(self, stamp: float) -> None:
         """Drop the confidences older than ``stamp``: they belong to what the track followed before."""
@@ -562,7 +517,6 @@ class OnlineTargetSelector:
         self.joins = 0
         self.identity_changes = 0
         self.reacquisitions = 0
-        self._now = math.nan
         #: This frame's continuations, new track id -> the id whose history it took (online joins and handovers):
         #: the fuser continues the world filter with them.
         self.continued: dict[str, str] = {}
@@ -582,13 +536,12 @@ class OnlineTargetSelector:
         self._dropped_history = None
         self._lost_running = None
         self._present = set()
-        self._now = math.nan
         self.continued = {}
 
     def score(self, track_id: str) -> float:
         """Current score of a track (0 for an unknown one)."""
         running = self._running.get(track_id) or self._ended.get(track_id)
-        return running.score(self.config, self._now) if running is not None else 0.0
+        return running.score(self.config) if running is not None else 0.0
 
     def _try_inherit(self, track_id: str, stamp: float, position: np.ndarray,
                      confidence: float = math.nan, first_stamp: float = math.inf) -> _Running | None:
@@ -610,7 +563,7 @@ class OnlineTargetSelector:
                 continue
             if not ended.last_stamp < first_stamp:
                 continue
-            if looks * ended.score(cfg, stamp) < 0:
+            if looks * ended.score(cfg) < 0:
                 continue
             jump = float(np.hypot(*(position - ended.last_position)))
             cost = _continuation_cost(cfg, ended.last_position, ended.velocity, gap, position, jump, gap)
@@ -629,7 +582,6 @@ class OnlineTargetSelector:
     def update(self, stamp: float, world_tracks) -> str | None:
         """Update the running scores with one frame and return the vessel of interest's track id."""
         cfg = self.config
-        self._now = stamp
         self.continued = {}
         present: set[str] = set()
         measured_now: set[str] = set()
@@ -665,10 +617,6 @@ class OnlineTargetSelector:
             if wt.screen.updated and math.isfinite(wt.screen.confidence):
                 running.confidences.append(float(wt.screen.confidence))
                 running.confidence_stamps.append(stamp)
-            size_consistent = getattr(wt, "size_consistent", None)
-            if wt.screen.updated and size_consistent is not None:
-                running.known += 1
-                running.consistent += int(bool(size_consistent))
             if measured:
                 measured_now.add(tid)
                 if running.first_position is None:
@@ -746,7 +694,7 @@ class OnlineTargetSelector:
     def _target_lost(self, tid: str, running: _Running, stamp: float) -> None:
         self._last_target_ended = tid
         self._lost_running = running
-        self._lost_score = running.score(self.config, stamp)
+        self._lost_score = running.score(self.config)
         self._lost_stamp = stamp
         self.target = None
 
@@ -778,11 +726,9 @@ class OnlineTargetSelector:
             return
         candidate = self._running[best]
         merged = _Running(deque(current.confidences, maxlen=cfg.history_length),
-                          deque(current.confidence_stamps, maxlen=cfg.history_length),
-                          consistent=current.consistent, known=current.known)
+                          deque(current.confidence_stamps, maxlen=cfg.history_length))
         merged.append_evidence(candidate)
         candidate.confidences, candidate.confidence_stamps = merged.confidences, merged.confidence_stamps
-        candidate.consistent, candidate.known = merged.consistent, merged.known
         candidate.path_m += current.path_m + float(np.hypot(*(candidate.first_position - current.last_position)))
         candidate.inherited_from = self.target
         candidate.established = True
@@ -797,16 +743,16 @@ class OnlineTargetSelector:
         cfg = self.config
         # Established (confirmed, or continuing a joined track) candidates first; a tentative track only
         # while there is nothing else, and it gives way at once to an established one.
-        scores = {tid: r.score(cfg, stamp) for tid, r in self._running.items() if r.eligible and r.established}
+        scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible and r.established}
         if not scores:
-            scores = {tid: r.score(cfg, stamp) for tid, r in self._running.items() if r.eligible}
+            scores = {tid: r.score(cfg) for tid, r in self._running.items() if r.eligible}
         elif self.target in self._running and not self._running[self.target].established:
             self.target = None
         if self.target in self._running and not self._running[self.target].recent_evidence_ok(cfg, stamp):
             self._appearance_changed(self.target, stamp)
         scores = {tid: s for tid, s in scores.items() if tid in self._running and cfg.eligible_score(s)
                   and self._running[tid].recent_evidence_ok(cfg, stamp)}
-        if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg, stamp)):
+        if self.target in self._running and not cfg.eligible_score(self._running[self.target].score(cfg)):
             self.target = None  # its evidence turned: another boat, not the vessel of interest
         if self.target is None and self._waiting_for_dropped_track():
             scores = {tid: s for tid, s in scores.items() if self._carries_lost_target(tid)}
@@ -827,18 +773,15 @@ class OnlineTargetSelector:
             return self._reacquired(stamp) if cfg.reacquire_recent_evidence > 0 else None
         best = max(scores, key=lambda t: (scores[t], t == self.target))
         if self.target is None or self.target not in self._running:
-            lost_score = self._lost_score
-            if cfg.evidence_half_life_s > 0 and lost_score > 0:
-                lost_score *= 0.5 ** (max(stamp - self._lost_stamp, 0.0) / cfg.evidence_half_life_s)
             if stamp - self._lost_stamp <= cfg.reacquire_window_s and \
-                    scores[best] < cfg.reacquire_fraction * lost_score:
+                    scores[best] < cfg.reacquire_fraction * self._lost_score:
                 self.target = None  # the vessel of interest was lost a moment ago: no stand-in for it ...
                 # ... unless a track's recent boxes say it is back
                 return self._reacquired(stamp) if cfg.reacquire_recent_evidence > 0 else None
             self.target = best
             self._challenger = None
             return self.target
-        current = scores.get(self.target, self._running[self.target].score(cfg, stamp))
+        current = scores.get(self.target, self._running[self.target].score(cfg))
         if not self._running[self.target].established and best != self.target and scores[best] > current:
             self.target = best  # the hold time protects an established target, not a tentative first guess
             self._challenger = None
@@ -891,7 +834,7 @@ class OnlineTargetSelector:
             confidences = np.fromiter(running.confidences, float)
             if not float(np.sum(clipped_log_odds(confidences[np.isfinite(confidences)], cfg.evidence_clip))) > 0:
                 running.forget_before(stamp - cfg.recent_evidence_s)
-            if not (cfg.eligible_score(running.score(cfg, stamp)) and running.recent_evidence_ok(cfg, stamp)):
+            if not (cfg.eligible_score(running.score(cfg)) and running.recent_evidence_ok(cfg, stamp)):
                 running.confidences, running.confidence_stamps = kept  # not taken: its history stays whole
                 continue
             self.target = tid

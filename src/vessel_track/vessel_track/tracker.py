@@ -41,6 +41,7 @@ import numpy as np
 
 from vessel_calib.params import node_blocks, read_params_yaml
 from vessel_common.errors import CalibrationError, DataError
+from vessel_common.state_file import checked_fields, fields_of
 from vessel_track.deferred_imports import kalman_filter, linear_sum_assignment
 
 if TYPE_CHECKING:
@@ -133,11 +134,11 @@ class TrackerConfig:
     size_log_std: float = 0.4
     """Expected change of ln(box width) and ln(box height) between associated detections (0.4: about ±50 %;
     hand boxes of the challenge boat change by up to 2.3x between frames 4 s apart when it passes close)."""
-    height_log_std: float = 0.0
+    height_log_std: float = 0.2
     """Expected change of ln(box height) alone between detections close together in time (0: ``size_log_std``).
     A boat's width changes with its heading, its height almost only with its range, so the height can be held
     to a tighter model than the width: a track then does not move onto a box of another boat half its height."""
-    height_log_std_rate: float = 0.0
+    height_log_std_rate: float = 0.0005
     """Growth of the height's expected change with time and nearness, per px of box height per s (0: constant).
     The height scales as 1/range, so ln(height) changes by (range rate / range) dt, and range is proportional to
     1/height: the expected change is ``height_log_std_rate x height x dt``, added in quadrature to
@@ -147,7 +148,7 @@ class TrackerConfig:
     max_size_ratio: float = 3.0
     """A detection whose width or height differs from the track's box by more than this factor is not
     associated (0 disables the size gate)."""
-    confidence_weight: float = 0.0
+    confidence_weight: float = 2.0
     """Weight of the confidence-agreement term in the association cost (0 disables it). With confidences that
     are a probability of being one kind of vessel (the vessel of interest, ``confidence_class``), a track whose
     recent boxes were likely that vessel should not take a box the detector calls another boat, nor the other way
@@ -495,20 +496,68 @@ class MultiTargetTracker:
         return ids
 
     def snapshot(self) -> dict:
-        """The tracks and counters ``restore`` needs to carry on in another process (picklable; not a copy)."""
-        return {"tracks": self._tracks, "ended": self._ended, "next_id": self._next_id,
-                "last_stamp": self._last_stamp}
+        """The tracks and counters ``restore`` needs to carry on in another process, as plain data (a copy).
+
+        Numbers, strings, containers and numpy arrays only: what a state file holds (``vessel_common.state_file``).
+        """
+        return {"tracks": [self._track_state(track) for track in self._tracks],
+                "ended": {track_id: self._track_state(track) for track_id, track in self._ended.items()},
+                "next_id": self._next_id, "last_stamp": self._last_stamp}
 
     def restore(self, snapshot: dict) -> None:
         """Carry on from ``snapshot()`` of a tracker with the same config (a node restarted after a crash).
 
         New ids start ``max_tracks`` past the snapshot's, beyond any track started between it and the crash.
+        ValueError (KeyError, TypeError) for a snapshot with other fields than this version's: the tracker is then
+        left as it was.
         """
-        tracks, ended = list(snapshot["tracks"]), dict(snapshot["ended"])
-        next_id, last_stamp = int(snapshot["next_id"]), snapshot["last_stamp"]
+        tracks = [self._restored_track(state) for state in snapshot["tracks"]]
+        ended = {str(track_id): self._restored_track(state) for track_id, state in dict(snapshot["ended"]).items()}
+        last_stamp = None if snapshot["last_stamp"] is None else float(snapshot["last_stamp"])
+        next_id = int(snapshot["next_id"])
         self._tracks, self._ended, self._last_stamp = tracks, ended, last_stamp
         # Tracks started after the snapshot were published before the crash: their ids are not given again.
         self._next_id = max(self._next_id, next_id + self.config.max_tracks)
+
+    # What of a track's filter the tracker uses (it gives F and Q at each predict), and a history entry's parts.
+    _FILTER_MATRICES = {"x": (4, 1), "P": (4, 4), "R": (2, 2), "H": (2, 4)}
+    _HISTORY_COLUMNS = (("stamps", ()), ("centers", (2,)), ("sizes", (2,)), ("confidences", ()), ("filtered", (2,)))
+
+    @classmethod
+    def _track_state(cls, track: _Track) -> dict:
+        """A track as plain data: its fields, its filter's matrices, and its history as one array per column."""
+        state = fields_of(track, skip=("kf", "history"))
+        state["size"] = np.array(track.size, dtype=float)
+        state["kf"] = {name: np.array(getattr(track.kf, name), dtype=float) for name in cls._FILTER_MATRICES}
+        rows = list(track.history)
+        state["history"] = {"maxlen": track.history.maxlen}
+        for index, (name, shape) in enumerate(cls._HISTORY_COLUMNS):
+            state["history"][name] = np.array([row[index] for row in rows], dtype=float).reshape(len(rows), *shape)
+        return state
+
+    @classmethod
+    def _restored_track(cls, state: dict) -> _Track:
+        """The track ``_track_state`` described; ValueError for other fields or shapes."""
+        values = dict(checked_fields(state, {f.name for f in fields(_Track)}, "a track"))
+
+        def array(value, shape: tuple[int, ...], what: str) -> np.ndarray:
+            value = np.array(value, dtype=float)
+            if value.shape != shape:
+                raise ValueError(f"{what} has shape {value.shape}, not {shape}")
+            return value
+
+        kf = kalman_filter(dim_x=4, dim_z=2)
+        for name, shape in cls._FILTER_MATRICES.items():
+            setattr(kf, name, array(values["kf"][name], shape, f"a track's filter {name}"))
+        history = checked_fields(values["history"], {"maxlen", *dict(cls._HISTORY_COLUMNS)}, "a track's history")
+        count = len(history["stamps"])
+        stamps, centers, sizes, confidences, filtered = (array(history[name], (count, *shape), f"track history {name}")
+                                                          for name, shape in cls._HISTORY_COLUMNS)
+        rows = zip(stamps.tolist(), centers, sizes, confidences.tolist(), filtered, strict=True)
+        values["history"] = deque(((stamp, center.copy(), size.copy(), confidence, smooth.copy())
+                                   for stamp, center, size, confidence, smooth in rows), maxlen=history["maxlen"])
+        values["kf"], values["size"] = kf, array(values["size"], (2,), "a track's size")
+        return _Track(**values)
 
     def history(self, track_id: str) -> TrackHistory:
         """History of a live track, or of one reported LOST by the latest update; KeyError otherwise."""

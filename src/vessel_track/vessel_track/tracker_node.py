@@ -22,80 +22,20 @@ import numpy as np
 from rclpy.node import Node
 
 from vessel_common.errors import DataError, VesselError
-from vessel_common.node_support import (
-    NodeHealth,
-    NodeState,
-    Standby,
-    declare_parameter,
-    reliable_qos,
-    sec_to_stamp,
-    stamp_to_sec,
-)
+from vessel_common.node_parameters import declare_table
+from vessel_common.node_support import NodeHealth, NodeState, Standby, reliable_qos, sec_to_stamp, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
 from vessel_track.node_params import main_with_checks
+from vessel_track.parameter_tables import EVERY_CLASS, TRACKER_PARAMETERS
 from vessel_track.tracker import (
-    ASSOCIATION_METHODS,
-    DISTANCE_METRICS,
-    PROCESS_NOISE_MODELS,
     MultiTargetTracker,
     TrackerConfig,
     TrackerCounters,
     TrackState,
     node_values,
 )
-
-#: TrackerConfig field -> (ROS parameter description, range). Every field is a parameter of the node.
-TRACKER_PARAMETERS: dict[str, tuple[str, tuple[float, float] | None]] = {
-    "measurement_std_px": ("Std of a detection's box centre, px (paper: 10 px at half resolution).", (1e-3, 1e4)),
-    "measurement_std_size_frac": ("Extra centre std as a fraction of the box size (w for x, h for y).", (0.0, 10.0)),
-    "process_noise_model": (f"Kalman process noise: {', '.join(PROCESS_NOISE_MODELS)} (paper = diag(0, q dt^2, "
-                            "0, q dt^2); continuous_wna is the same for any frame rate).", None),
-    "process_noise": ("q for x: px^2/s^3 (continuous_wna) or px^2/s^4 (discrete_wna, paper).", (0.0, 1e6)),
-    "process_noise_y": ("q for y, same units as process_noise (vessels near the horizon move little in y).",
-                        (0.0, 1e6)),
-    "init_velocity_std_x_px_s": ("Prior std of a new track's horizontal velocity, px/s.", (0.0, 1e4)),
-    "init_velocity_std_y_px_s": ("Prior std of a new track's vertical velocity, px/s.", (0.0, 1e4)),
-    "association": (f"{' or '.join(ASSOCIATION_METHODS)}: optimal (Hungarian) or nearest-first (paper).", None),
-    "distance_metric": (f"Association cost: {' or '.join(DISTANCE_METRICS)}.", None),
-    "gate_px": ("Detections this close to a prediction are always admissible, px (paper: 80 at half res).",
-                (1e-3, 1e5)),
-    "gate_sigmas": ("Beyond gate_px, admissible up to this Mahalanobis distance of the prediction.", (1e-3, 100.0)),
-    "max_gate_px": ("No detection farther than this from a prediction is admissible, px.", (1e-3, 1e5)),
-    "clutter_density_per_mpx": ("Expected false detections per frame per megapixel: a detection must be likelier "
-                                "from the track than from clutter (0 disables).", (0.0, 1e6)),
-    "size_weight": ("Weight of the box-size similarity in the association cost (0 disables).", (0.0, 1e3)),
-    "confidence_weight": ("Weight of the confidence-agreement term in the association cost: a track that followed "
-                          "a likely vessel of interest does not take an unlikely box, nor the other way round "
-                          "(0 disables).", (0.0, 1e3)),
-    "confidence_memory": ("Updates whose confidences make a track's side of the confidence-agreement term.",
-                          None),
-    "size_log_std": ("Expected change of ln(width), ln(height) between associated boxes.", (1e-3, 10.0)),
-    "height_log_std": ("Expected change of ln(height) alone between boxes close in time (0: size_log_std; else at "
-                       "least 0.001): the height follows the range, the width also the heading.", (0.0, 10.0)),
-    "height_log_std_rate": ("Growth of the height's expected change per px of box height per s since the track's "
-                            "last box, in quadrature (0: constant): near boats change size fast, far ones "
-                            "slowly.", (0.0, 1.0)),
-    "max_size_ratio": ("Boxes differing from the track's size by more than this factor are not associated "
-                       "(0 disables).", (0.0, 1e3)),
-    "min_hits": ("Detections before a track is CONFIRMED.", None),
-    "max_coast_s": ("A track not updated for longer than this is LOST (paper: 10 frames), s.", (1e-3, 1e6)),
-    "tentative_max_coast_s": ("A TENTATIVE track not updated for longer than this is dropped, s.", (1e-3, 1e6)),
-    "tentative_max_misses": ("A TENTATIVE track missing more consecutive frames than this is dropped.", None),
-    "max_tracks": ("At most this many live tracks; more detections are dropped and counted.", None),
-    "duplicate_iou": ("An unassociated box overlapping an associated one or a track by more IoU than this is a "
-                      "duplicate and starts no track (0 disables).", (0.0, 1.0)),
-    "min_score": ("Detections scoring below this are ignored.", (0.0, 1.0)),
-    "min_box_size_px": ("Boxes narrower or lower than this are invalid, px.", (1e-6, 1e4)),
-    "backwards_reset_s": ("Stamps going back this much or more reset the tracker (replay restarted); smaller "
-                          "steps back drop the frame, s.", (0.0, 1e9)),
-    "history_length": ("Updates kept per track (stamps, boxes, confidences).", None),
-    "id_prefix": ("Track ids are <id_prefix><n>.", None),
-}
-
-_INT_RANGES = {"min_hits": (1, 1000), "tentative_max_misses": (0, 1000), "max_tracks": (1, 100000),
-               "history_length": (1, 10_000_000), "confidence_memory": (1, 1000)}
 
 PROBLEMS = {
     "detections_invalid": "detections with NaN/inf coordinates, a NaN score or a width/height below "
@@ -108,32 +48,9 @@ PROBLEMS = {
 }
 
 
-def declare_tracker_config(node: Node) -> TrackerConfig:
-    """Declare every ``TrackerConfig`` field as a parameter (with descriptor and range) and build the config."""
-    defaults = TrackerConfig()
-    values = {}
-    for f in fields(TrackerConfig):
-        description, float_range = TRACKER_PARAMETERS[f.name]
-        default = getattr(defaults, f.name)
-        try:
-            if isinstance(default, float):
-                values[f.name] = declare_parameter(node, f.name, default, description, float_range=float_range)
-            elif isinstance(default, int):
-                values[f.name] = declare_parameter(node, f.name, default, description,
-                                                   int_range=_INT_RANGES[f.name])
-            else:
-                values[f.name] = declare_parameter(node, f.name, default, description)
-        except DataError:
-            raise  # declare_parameter's own one-line report, complete as it is
-        except Exception as error:  # rclpy's type/range exceptions: a configuration problem, reported in one line
-            raise DataError(f"tracker parameter {f.name}: {error} (default {default!r}); fix the parameter file") \
-                from None
-    return TrackerConfig.from_dict(values)
-
-
-EVERY_CLASS = "*"
-"""The ``classes`` entry that tracks every class (a parameter needs a value: ``ros2 param dump`` answers nothing
-for a node with an unset one)."""
+def tracker_config_of(values) -> TrackerConfig:
+    """The ``TrackerConfig`` of the node's parameter values (flat names); a bad combination is a DataError."""
+    return TrackerConfig.from_dict({f.name: values[f.name] for f in fields(TrackerConfig)})
 
 
 def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
@@ -236,20 +153,11 @@ class TrackerNode(Node):
 
     def __init__(self):
         super().__init__("tracker")
-        config = declare_tracker_config(self)
-        input_topic = declare_parameter(self, "input_topic", "/vessel/detections",
-                                        "Detections of each image (vessel_msgs/Detection2DArray).")
-        output_topic = declare_parameter(self, "output_topic", "/vessel/tracks/screen",
-                                         "Screen-space tracks of each image (vessel_msgs/VesselTrackArray).")
-        depth = declare_parameter(self, "qos_depth", 10, "Queue depth of the reliable input and output.",
-                                  int_range=(1, 1000))
-        classes = declare_parameter(self, "classes", [EVERY_CLASS],
-                                    "Class ids (hypothesis.class_id) to track, e.g. ['boat']; ['*']: every class "
-                                    "the detector publishes.")
-        self.classes = accepted_classes(classes)
-        self.confidence_class = declare_parameter(
-            self, "confidence_class", "", "Hypothesis class_id whose score is a track's confidence when a detection "
-            "has it (the detector's target_class, e.g. vessel_of_interest); '' : the best accepted hypothesis.")
+        values = declare_table(self, TRACKER_PARAMETERS, apply=self._apply_parameters)
+        config = tracker_config_of(values)
+        input_topic, output_topic, depth = values["input_topic"], values["output_topic"], values["qos_depth"]
+        self.classes = accepted_classes(values["classes"])
+        self.confidence_class = values["confidence_class"]
         self.tracker = MultiTargetTracker(config)
         self.health = NodeHealth(self)
         self.standby = Standby(self)
@@ -265,6 +173,13 @@ class TrackerNode(Node):
             f"tracker: {input_topic} -> {output_topic}; gate {config.gate_px:g} px/{config.gate_sigmas:g} sigma, "
             f"lost after {config.max_coast_s:g} s, {config.process_noise_model} q={config.process_noise:g}, "
             f"classes {sorted(self.classes) if self.classes else 'all'}")
+
+    def _apply_parameters(self, values) -> None:
+        """A live change of the tracker's settings: checked as at start, used from the next frame on."""
+        config = tracker_config_of(values)
+        self.classes = accepted_classes(values["classes"])
+        self.confidence_class = values["confidence_class"]
+        self.tracker.config = config
 
     def on_detections(self, msg: Detection2DArray) -> None:
         """Track one image's detections and publish every track with the image's header."""

@@ -13,7 +13,8 @@ The paper's method, then better:
    did not help).
 
 Bad input raises CalibrationError before anything is written: fewer than 4 pairs, NaN/inf, duplicates,
-collinear pairs, an invalid camera position, pairs that land on or above the fitted horizon.
+collinear pairs, an invalid camera position (``vessel_tools.calib.pair_checks``), pairs that land on or above the
+fitted horizon. The DLT, the lens model and the K1 scan of step 1 are ``vessel_tools.calib.homography``.
 """
 
 from __future__ import annotations
@@ -27,16 +28,12 @@ from scipy.optimize import least_squares
 from vessel_calib import geodesy
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel
 from vessel_common.errors import CalibrationError
+from vessel_tools.calib.homography import front_sign, msac_cost, normaliser, project, robust_initial_fit, scan_k1
+from vessel_tools.calib.pair_checks import as_pairs, validate_pairs
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
-#: A pair further than this from the camera is a wrong camera position or swapped lat/lon, not a vessel in view.
-MAX_PAIR_DISTANCE_M = 30000.0
-#: Ratio of the singular values of centred coordinates below which points count as collinear.
-COLLINEAR_RATIO = 1e-3
 #: With fewer pairs K1 is not fitted (12 residuals for 9 unknowns at least): it stays at k1_fixed or 0.
 MIN_PAIRS_FOR_K1 = 6
-#: Screen points this far outside the image are a wrong image size or a unit mistake.
-OUTSIDE_IMAGE_MARGIN = 0.1
 #: |(H[2,0], H[2,1])| of the paper's H: the scale of z_p (about 0.53 x depth in metres) for every fitted H.
 PAPER_ZP_ROW_NORM = math.hypot(0.512, 0.144)
 #: Reprojection (px) assigned to a pair that falls behind the camera or off the lens model during the fit.
@@ -162,263 +159,12 @@ class CalibrationResult:
         return lines
 
 
-# --------------------------------------------------------------------------- validation
-def _as_pairs(values, name: str, n: int | None = None) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"{name} must be numbers, shape (N, 2)") from None
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise CalibrationError(f"{name} must have shape (N, 2), got {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise CalibrationError(f"{name} has {arr.shape[0]} rows but there are {n} screen points")
-    return arr
-
-
-def _collinear(points: np.ndarray) -> bool:
-    centred = points - points.mean(axis=0)
-    s = np.linalg.svd(centred, compute_uv=False)
-    return bool(s[0] == 0 or s[1] / s[0] < COLLINEAR_RATIO)
-
-
-def _check_collinear(points: np.ndarray, what: str) -> None:
-    """A homography needs 4 points with no 3 on a line: refuse all-on-a-line and all-but-one-on-a-line."""
-    if _collinear(points):
-        raise CalibrationError(
-            f"the {what} points are (nearly) collinear: a homography needs pairs spread over the sea, not "
-            "along one line; label the vessel at several distances and bearings")
-    for i in range(len(points)):
-        if _collinear(np.delete(points, i, axis=0)):
-            raise CalibrationError(
-                f"all {what} points but pair {i} lie on one line: the homography is not determined; add pairs "
-                "away from that line (other distances and bearings)")
-
-
-def _check_duplicates(points: np.ndarray, tol: float, what: str) -> None:
-    order = np.lexsort(points.T[::-1])
-    sorted_pts = points[order]
-    for k in range(len(points) - 1):
-        j = k + 1
-        while j < len(points) and sorted_pts[j, 0] - sorted_pts[k, 0] <= tol:
-            if np.all(np.abs(sorted_pts[j] - sorted_pts[k]) <= tol):
-                a, b = sorted(int(v) for v in (order[k], order[j]))
-                raise CalibrationError(
-                    f"pairs {a} and {b} have the same {what} point ({points[a, 0]:.6g}, {points[a, 1]:.6g}): a "
-                    "duplicated row or a copy/paste error; remove one of them")
-            j += 1
-
-
-def validate_pairs(screen, gps, camera_lat: float, camera_lon: float, image_size=(1280, 720)):
-    """Check labelled pairs; returns (screen (N,2), gps (N,2), world (N,2)) or raises CalibrationError."""
-    geodesy.validate_lat_lon(camera_lat, camera_lon, "camera position (--camera-lat/--camera-lon)")
-    screen = _as_pairs(screen, "screen points")
-    n = screen.shape[0]
-    gps = _as_pairs(gps, "GPS positions", n)
-    if n < 4:
-        raise CalibrationError(f"need at least 4 labelled pairs to fit a homography, got {n}")
-    for name, arr in (("screen x/y", screen), ("GPS lat/lon", gps)):
-        bad = ~np.isfinite(arr).all(axis=1)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise CalibrationError(f"pair {i}: {name} is not finite ({arr[i, 0]}, {arr[i, 1]}); fix or drop that row")
-    for i in range(n):
-        geodesy.validate_lat_lon(gps[i, 0], gps[i, 1], f"pair {i} GPS position")
-    width, height = image_size
-    mx, my = OUTSIDE_IMAGE_MARGIN * width, OUTSIDE_IMAGE_MARGIN * height
-    outside = (screen[:, 0] < -mx) | (screen[:, 0] > width + mx) | (screen[:, 1] < -my) | (screen[:, 1] > height + my)
-    if outside.any():
-        i = int(np.flatnonzero(outside)[0])
-        raise CalibrationError(
-            f"pair {i}: screen point ({screen[i, 0]:g}, {screen[i, 1]:g}) is outside the {width}x{height} image; "
-            "give full-resolution pixels and the right --image-size")
-    xw, yw = geodesy.gps_to_local(gps[:, 0], gps[:, 1], camera_lat, camera_lon)
-    world = np.column_stack([xw, yw])
-    dist = np.hypot(xw, yw)
-    if np.any(dist > MAX_PAIR_DISTANCE_M):
-        i = int(np.argmax(dist))
-        raise CalibrationError(
-            f"pair {i} is {dist[i] / 1000:.0f} km from the camera: wrong camera position, or lat/lon swapped")
-    _check_duplicates(screen, 1e-6, "screen")
-    _check_duplicates(world, 1e-3, "GPS")
-    _check_collinear(world, "GPS (world)")
-    _check_collinear(screen, "screen")
-    return screen, gps, world
-
-
-# --------------------------------------------------------------------------- DLT and K1 scan
-def _normaliser(points: np.ndarray) -> np.ndarray:
-    """Hartley normalisation: centroid to the origin, mean distance sqrt(2)."""
-    c = points.mean(axis=0)
-    mean_dist = np.mean(np.hypot(points[:, 0] - c[0], points[:, 1] - c[1]))
-    s = math.sqrt(2.0) / mean_dist if mean_dist > 0 else 1.0
-    return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
-
-
-def _dlt_normalised(ideal: np.ndarray, world: np.ndarray):
-    """Return (H, Tw, Tp, Hn) with H = Tp^-1 Hn Tw; Hn has unit Frobenius norm."""
-    Tw = _normaliser(world)
-    Tp = _normaliser(ideal)
-    wn = world @ Tw[:2, :2].T + Tw[:2, 2]
-    pn = ideal @ Tp[:2, :2].T + Tp[:2, 2]
-    n = len(world)
-    A = np.zeros((2 * n, 9))
-    X, Y = wn[:, 0], wn[:, 1]
-    x, y = pn[:, 0], pn[:, 1]
-    one = np.ones(n)
-    A[0::2, 0:3] = np.column_stack([X, Y, one])
-    A[0::2, 6:9] = -x[:, None] * np.column_stack([X, Y, one])
-    A[1::2, 3:6] = np.column_stack([X, Y, one])
-    A[1::2, 6:9] = -y[:, None] * np.column_stack([X, Y, one])
-    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < 9)  # thin SVD: U of 2N x 2N is not needed
-    s = np.concatenate([s, np.zeros(9 - s.size)]) if s.size < 9 else s
-    if s[-2] < 1e-9 * s[0]:
-        raise CalibrationError(
-            "the pairs do not determine a homography (degenerate layout, e.g. three of four points on a line); "
-            "add pairs at other distances and bearings")
-    Hn = Vt[-1].reshape(3, 3)
-    H = np.linalg.inv(Tp) @ Hn @ Tw
-    return H, Tw, Tp, Hn
-
-
-def normalized_dlt(ideal_xy, world_xy) -> np.ndarray:
-    """H (paper convention, z_p (x_p, y_p, 1) = H (x_w, y_w, 1)) by Hartley-normalised DLT, scaled so |H| = 1."""
-    ideal = np.asarray(ideal_xy, dtype=float).reshape(-1, 2)
-    world = np.asarray(world_xy, dtype=float).reshape(-1, 2)
-    if len(ideal) < 4 or len(ideal) != len(world):
-        raise CalibrationError(f"the DLT needs at least 4 matching pairs, got {len(ideal)} and {len(world)}")
-    H = _dlt_normalised(ideal, world)[0]
-    return H / np.linalg.norm(H)
-
-
-def _project(H, K1, center, world):
-    """Screen projection and a mask of pairs in front of the camera and inside the lens domain."""
-    q = world @ H[:, :2].T + H[:, 2]
-    zp = q[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        p = q[:, :2] / zp[:, None]
-    d = p - center
-    r2 = np.sum(d * d, axis=1)
-    ok = np.isfinite(r2)
-    if K1 < 0:
-        ok &= r2 < -1.0 / (3.0 * K1)
-    s = center + d * (1.0 + K1 * r2)[:, None]
-    return s, zp, ok
-
-
-def _undistort_points(screen, K1, center):
-    """Ideal points of screen points under K1 (NaN where the lens model has no inverse)."""
-    d = screen - center
-    rs = np.hypot(d[:, 0], d[:, 1])
-    if K1 == 0:
-        return screen.copy()
-    u = rs.copy()
-    if K1 < 0:
-        r_fold = math.sqrt(-1.0 / (3.0 * K1))
-        if np.any(rs > r_fold * (2.0 / 3.0)):
-            return np.full_like(screen, np.nan)
-        u = np.minimum(u, r_fold)
-    for _ in range(80):
-        f = u + K1 * u ** 3 - rs
-        step = f / (1.0 + 3.0 * K1 * u * u)
-        u = u - step
-        if np.max(np.abs(step)) < 1e-12 * max(1.0, float(np.max(u))):
-            break
-    scale = np.where(rs > 0, u / np.where(rs > 0, rs, 1.0), 1.0)
-    return center + d * scale[:, None]
-
-
-def _front_sign(H, world) -> np.ndarray:
-    """Flip H so the labelled points are in front (z_p < 0), the paper's sign."""
-    zp = world @ H[2, :2] + H[2, 2]
-    return -H if np.median(zp) > 0 else H
-
-
-def scan_k1(screen, world, center, k1_values, weights=None):
-    """The paper's brute force: for each K1, undistort, DLT, score the (weighted) squared reprojection error.
-
-    Returns (best_k1, best_H, losses) with losses (inf where K1 cannot undistort every point or the DLT fails).
-    """
-    screen = np.asarray(screen, dtype=float)
-    world = np.asarray(world, dtype=float)
-    center = np.asarray(center, dtype=float)
-    w = np.ones(len(screen)) if weights is None else np.asarray(weights, dtype=float)
-    losses = np.full(len(k1_values), np.inf)
-    best = (math.inf, None, None)
-    for i, k1 in enumerate(k1_values):
-        ideal = _undistort_points(screen, float(k1), center)
-        if not np.isfinite(ideal).all():
-            continue
-        try:
-            H = _front_sign(normalized_dlt(ideal, world), world)
-        except (CalibrationError, np.linalg.LinAlgError):
-            continue
-        proj, zp, ok = _project(H, float(k1), center, world)
-        if not (ok.all() and np.all(zp < 0)):
-            continue
-        loss = float(np.sum(w * np.sum((proj - screen) ** 2, axis=1)))
-        losses[i] = loss
-        if loss < best[0]:
-            best = (loss, float(k1), H)
-    if best[1] is None:
-        raise CalibrationError(
-            "no K1 in the scan gives a usable fit: the pairs are inconsistent (wrong camera position, swapped "
-            "lat/lon, or screen points from another image size)")
-    return best[1], best[2], losses
-
-
-def robust_initial_fit(screen, world, center, K1, threshold_px: float, iterations: int = 600, seed: int = 0):
-    """MSAC over 4-pair samples at a fixed K1: (H, inlier mask) of the best consensus, refitted on its inliers.
-
-    The algebraic DLT over all pairs is pulled far off by a single gross outlier (a label in the sky can
-    drag the horizon above the image), and the refinement then stays in that basin; starting from the
-    consensus of the well-behaved pairs lets the robust loss do its job. Returns (None, None) if no sample works.
-    """
-    ideal = _undistort_points(screen, K1, center)
-    if not np.isfinite(ideal).all():
-        return None, None
-    n = len(screen)
-    rng = np.random.default_rng(seed)
-    if math.comb(n, 4) <= iterations:
-        from itertools import combinations
-
-        samples = [np.array(c) for c in combinations(range(n), 4)]
-    else:
-        samples = [rng.choice(n, size=4, replace=False) for _ in range(iterations)]
-    t2 = threshold_px ** 2
-    best_cost, best_inliers = math.inf, None
-    for idx in samples:
-        try:
-            H = _front_sign(_dlt_normalised(ideal[idx], world[idx])[0], world[idx])
-        except (CalibrationError, np.linalg.LinAlgError):
-            continue
-        proj, zp, ok = _project(H, K1, center, world)
-        r2 = np.sum((proj - screen) ** 2, axis=1)
-        r2 = np.where(ok & (zp < 0) & np.isfinite(r2), r2, np.inf)
-        cost = float(np.sum(np.minimum(r2, t2)))
-        if cost < best_cost:
-            best_cost, best_inliers = cost, r2 < t2
-    if best_inliers is None or best_inliers.sum() < 4:
-        return None, None
-    try:
-        H = _front_sign(_dlt_normalised(ideal[best_inliers], world[best_inliers])[0], world[best_inliers])
-    except CalibrationError:
-        return None, None
-    return H, best_inliers
-
-
-def _msac_cost(H, K1, center, screen, world, threshold_px) -> float:
-    proj, zp, ok = _project(H, K1, center, world)
-    r2 = np.sum((proj - screen) ** 2, axis=1)
-    r2 = np.where(ok & (zp < 0) & np.isfinite(r2), r2, np.inf)
-    return float(np.sum(np.minimum(r2, threshold_px ** 2)))
-
-
 # --------------------------------------------------------------------------- refinement
 def _refine(screen, world, center, H0, K1_0, options: FitOptions, weights):
     """Joint least-squares refinement of H (8 dof about H0) and K1; returns (H, K1, nfev)."""
     r_ref2 = float(np.max(np.sum((screen - center) ** 2, axis=1))) or 1.0
-    Tw = _normaliser(world)
-    Tp = _normaliser(screen)
+    Tw = normaliser(world)
+    Tp = normaliser(screen)
     Tp_inv = np.linalg.inv(Tp)
     Tw_inv = np.linalg.inv(Tw)
     Hn0 = Tp @ H0 @ Tw_inv
@@ -437,7 +183,7 @@ def _refine(screen, world, center, H0, K1_0, options: FitOptions, weights):
 
     def residuals(x):
         H, K1 = unpack(x)
-        proj, zp, ok = _project(H, K1, center, world)
+        proj, zp, ok = project(H, K1, center, world)
         r = proj - screen
         bad = ~ok | ~(zp < 0) | ~np.isfinite(r).all(axis=1)
         r[bad] = _BEHIND_PENALTY_PX
@@ -499,42 +245,62 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
     center_arr = np.array(center if center is not None else (width / 2.0, height / 2.0), dtype=float)
     screen, gps, world = validate_pairs(screen, gps, camera_lat, camera_lon, (width, height))
     weights = pair_weights(world, options.far_weight)
-
-    if len(screen) < MIN_PAIRS_FOR_K1 and options.k1_fixed is None:
-        # 4-5 pairs fix H exactly for any K1: K1 cannot be learned from them.
-        options = replace(options, k1_fixed=0.0, fit_k1=False)
-    if options.k1_fixed is not None:
-        k1_values = np.array([options.k1_fixed])
-    else:
-        k1_values = np.linspace(options.k1_min, options.k1_max, options.k1_steps)
+    options, k1_values = _k1_grid(options, len(screen))
     k1_scan_best, H, losses = scan_k1(screen, world, center_arr, k1_values, weights)
-    K1 = k1_scan_best
-    if options.loss != "linear" and len(screen) > 5:
-        # Robust start: consensus of 4-pair samples, K1 rescanned on its inliers; kept if it explains more.
-        threshold = 5.0 * options.loss_scale_px
-        H_cons, inliers = robust_initial_fit(screen, world, center_arr, K1, threshold)
-        if H_cons is not None and inliers.sum() >= max(4, len(screen) // 2) and not inliers.all():
-            try:
-                k1_in, H_in, _ = scan_k1(screen[inliers], world[inliers], center_arr, k1_values, weights[inliers])
-            except CalibrationError:
-                k1_in, H_in = K1, H_cons
-            if (_msac_cost(H_in, k1_in, center_arr, screen, world, threshold)
-                    < _msac_cost(H, K1, center_arr, screen, world, threshold)):
-                H, K1 = H_in, k1_in
+    H, K1 = _robust_start(screen, world, center_arr, H, k1_scan_best, k1_values, weights, options)
     nfev = 0
     if options.refine:
         H_ref, K1_ref, nfev = _refine(screen, world, center_arr, H, K1, options, weights)
-        H_ref = _front_sign(H_ref, world)
-        proj, zp, ok = _project(H_ref, K1_ref, center_arr, world)
+        H_ref = front_sign(H_ref, world)
+        proj, zp, ok = project(H_ref, K1_ref, center_arr, world)
         if ok.all() and np.all(zp < 0) and np.isfinite(proj).all():
             H, K1 = H_ref, K1_ref
-    H = _normalise_scale(_front_sign(H, world))
+    H = _normalise_scale(front_sign(H, world))
     try:
         model = CameraModel(H, K1, center=tuple(center_arr), image_size=(width, height),
                             camera_lat=camera_lat, camera_lon=camera_lon, box_anchor=box_anchor)
     except CalibrationError as exc:
         raise CalibrationError(f"the fit produced an unusable camera: {exc}") from None
+    xs, ys = _screen_of_visible_pairs(model, screen, world)
+    figures = evaluate(model, screen, gps)
+    return CalibrationResult(
+        model=model, options=options, screen=screen, gps=gps, world=world,
+        reproj_px=np.column_stack([xs, ys]) - screen, backproj_m=_backproj_errors(model, screen, gps),
+        figures=figures, k1_scan=(k1_values, losses), scan_k1=k1_scan_best, nfev=nfev)
 
+
+def _k1_grid(options: FitOptions, n_pairs: int) -> tuple[FitOptions, np.ndarray]:
+    """The K1 values to scan, and the options with K1 fixed at 0 for pairs too few to learn it from."""
+    if n_pairs < MIN_PAIRS_FOR_K1 and options.k1_fixed is None:
+        # 4-5 pairs fix H exactly for any K1: K1 cannot be learned from them.
+        options = replace(options, k1_fixed=0.0, fit_k1=False)
+    if options.k1_fixed is not None:
+        return options, np.array([options.k1_fixed])
+    return options, np.linspace(options.k1_min, options.k1_max, options.k1_steps)
+
+
+def _robust_start(screen, world, center, H, K1, k1_values, weights, options: FitOptions):
+    """The (H, K1) the refinement starts from: the scan's, or with a robust loss a consensus that explains more.
+
+    The consensus of 4-pair samples (``robust_initial_fit``), K1 rescanned on its inliers, replaces the scan's
+    start when its MSAC cost over all pairs is lower.
+    """
+    if options.loss != "linear" and len(screen) > 5:
+        threshold = 5.0 * options.loss_scale_px
+        H_cons, inliers = robust_initial_fit(screen, world, center, K1, threshold)
+        if H_cons is not None and inliers.sum() >= max(4, len(screen) // 2) and not inliers.all():
+            try:
+                k1_in, H_in, _ = scan_k1(screen[inliers], world[inliers], center, k1_values, weights[inliers])
+            except CalibrationError:
+                k1_in, H_in = K1, H_cons
+            if (msac_cost(H_in, k1_in, center, screen, world, threshold)
+                    < msac_cost(H, K1, center, screen, world, threshold)):
+                H, K1 = H_in, k1_in
+    return H, K1
+
+
+def _screen_of_visible_pairs(model: CameraModel, screen, world):
+    """The pairs' GPS projected through ``model``; _BeyondHorizonError when a pair is on/above its horizon or behind."""
     _, _, valid = model.screen_to_world(screen[:, 0], screen[:, 1])
     if not valid.all():
         bad = np.flatnonzero(~valid)
@@ -546,18 +312,14 @@ def calibrate(screen, gps, camera_lat: float, camera_lon: float, image_size=(128
     if not in_front.all():
         i = int(np.flatnonzero(~in_front)[0])
         raise _BeyondHorizonError(f"pair {i}: its GPS position falls behind the fitted camera; check that pair",
-                             np.flatnonzero(~in_front))
-    figures = evaluate(model, screen, gps)
-    return CalibrationResult(
-        model=model, options=options, screen=screen, gps=gps, world=world,
-        reproj_px=np.column_stack([xs, ys]) - screen, backproj_m=_backproj_errors(model, screen, gps),
-        figures=figures, k1_scan=(k1_values, losses), scan_k1=k1_scan_best, nfev=nfev)
+                                  np.flatnonzero(~in_front))
+    return xs, ys
 
 
 def _calibrate_dropping(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor, water_levels,
                         rounds: int = 4) -> CalibrationResult:
-    screen = _as_pairs(screen, "screen points")
-    gps = _as_pairs(gps, "GPS positions", len(screen))
+    screen = as_pairs(screen, "screen points")
+    gps = as_pairs(gps, "GPS positions", len(screen))
     levels = None if water_levels is None else _pair_levels(water_levels, len(screen))
     keep = np.ones(len(screen), dtype=bool)
     for _ in range(rounds):
@@ -631,8 +393,8 @@ def _pair_levels(levels, n: int) -> np.ndarray:
 
 def _calibrate_at_water_levels(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor,
                                water_levels) -> CalibrationResult:
-    screen = _as_pairs(screen, "screen points")
-    gps = _as_pairs(gps, "GPS positions", len(screen))
+    screen = as_pairs(screen, "screen points")
+    gps = as_pairs(gps, "GPS positions", len(screen))
     levels = _pair_levels(water_levels, len(screen))
     reference = float(np.mean(levels))
     result = calibrate(screen, gps, camera_lat, camera_lon, image_size, center, options, box_anchor)
@@ -697,8 +459,8 @@ def evaluate(model: CameraModel, screen, gps, levels=None) -> Figures:
     counted in ``backproj_invalid``; ``backproj_per_100m`` is the paper's least-squares slope through the origin,
     100 * sum(e * d) / sum(d^2), over valid pairs.
     """
-    screen = _as_pairs(screen, "screen points")
-    gps = _as_pairs(gps, "GPS positions", len(screen))
+    screen = as_pairs(screen, "screen points")
+    gps = as_pairs(gps, "GPS positions", len(screen))
     if len(screen) == 0:
         raise CalibrationError("no pairs to evaluate on")
     if levels is not None:

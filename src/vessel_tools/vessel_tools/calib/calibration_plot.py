@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_tools.calib.calibration import CalibrationResult
 from vessel_calib.camera_model import CameraModel
 from vessel_common.errors import CalibrationError
+from vessel_tools.calib.calibration import CalibrationResult
 
 
 def _polyline(model: CameraModel, xw: np.ndarray, yw: np.ndarray):
@@ -145,7 +145,14 @@ def render_calibration_picture(path, result: CalibrationResult, frame_path=None,
     ax_zoom.set_title(f"zoom on the labelled band; sea grid every {grid_step_m / 5:g} m to 100 m, then "
                       f"{grid_step_m:g} m; cyan: distance rings; orange line: fitted horizon", fontsize=10)
 
-    ax_k1 = fig.add_subplot(grid[2, 0])
+    _draw_k1_scan(fig.add_subplot(grid[2, 0]), result)
+    _draw_backprojection_errors(fig.add_subplot(grid[2, 1]), result, extra_points)
+    return _save(fig, Path(path))
+
+
+def _draw_k1_scan(ax_k1, result: CalibrationResult) -> None:
+    """The paper's K1 brute-force curve, with the scan's best K1 and the refined one."""
+    model = result.model
     k1_values, losses = result.k1_scan
     finite = np.isfinite(losses)
     if finite.any():
@@ -158,12 +165,14 @@ def render_calibration_picture(path, result: CalibrationResult, frame_path=None,
     ax_k1.set_ylabel("mean squared reprojection (px²)")
     ax_k1.set_title("K1 brute force (DLT per K1)", fontsize=10)
 
-    ax_err = fig.add_subplot(grid[2, 1])
+
+def _draw_backprojection_errors(ax_err, result: CalibrationResult, extra_points) -> None:
+    """Back-projected error against distance of the fit pairs and of ``extra_points`` (validation)."""
+    model = result.model
     dist = np.hypot(result.world[:, 0], result.world[:, 1])
     ok = np.isfinite(result.backproj_m)
     ax_err.scatter(dist[ok], result.backproj_m[ok], s=14, c="dodgerblue", label="fit pairs")
     if extra_points is not None and len(extra_points[0]):
-
         es, eg = extra_points
         lat, lon, valid = model.screen_to_gps(es[:, 0], es[:, 1])
         err = geodesy.haversine_m(lat, lon, eg[:, 0], eg[:, 1])
@@ -175,7 +184,11 @@ def render_calibration_picture(path, result: CalibrationResult, frame_path=None,
     ax_err.grid(alpha=0.3)
     ax_err.legend(fontsize=8)
 
-    path = Path(path)
+
+def _save(fig, path: Path) -> Path:
+    """``fig`` saved to ``path`` as a PNG through a temporary file (atomic), then closed."""
+    import matplotlib.pyplot as plt
+
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
     os.close(fd)

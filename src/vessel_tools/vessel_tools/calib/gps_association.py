@@ -21,19 +21,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NoReturn
 
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_tools.calib.calibration import (
-    DEFAULT_BOX_ANCHOR,
-    CalibrationResult,
-    FitOptions,
-    _front_sign,
-    calibrate,
-)
 from vessel_calib.camera_model import CameraModel, box_points, pinhole_decomposition
 from vessel_common.errors import CalibrationError
+from vessel_tools.calib.calibration import DEFAULT_BOX_ANCHOR, CalibrationResult, FitOptions, calibrate
+from vessel_tools.calib.homography import front_sign
 
 #: The consensus search scores cameras up to this many times ``max_nadir_m`` from the given position (a 4-point
 #: hypothesis is noisy); the final camera must be within ``max_nadir_m``.
@@ -453,11 +449,26 @@ def associate_and_calibrate(frames: list[FrameBoxes], camera_lat: float, camera_
             f"only {with_boxes} of {len(frames)} frames have a detected boat: at least {options.min_associations} "
             "are needed")
     hypotheses, scored, misplaced = _consensus_search(world, anchors, scores, center_arr, options)
+    association, reasons = _best_association(hypotheses, frames, world, levels, anchors, anchors_index, camera_lat,
+                                             camera_lon, (width, height), center_arr, options, fit_options,
+                                             scored, with_boxes)
+    if association is None:
+        _refuse_without_camera(reasons, misplaced, options)
+    _check_trustworthy(association, options)
+    return association
+
+
+def _best_association(hypotheses, frames, world, levels, anchors, anchors_index, camera_lat, camera_lon, image_size,
+                      center, options, fit_options, scored, with_boxes) -> tuple[Association | None, list[str]]:
+    """Each consensus hypothesis refined: the association of the most frames (then the least residual).
+
+    Also why hypotheses were dropped (an unusable or impossible camera), for the error when none is left.
+    """
     best: tuple[int, float, Association] | None = None
     reasons: list[str] = []
     for H, k1, _cost in hypotheses:
         try:
-            model = CameraModel(_front_sign(H, world), k1, center=tuple(center_arr), image_size=(width, height),
+            model = CameraModel(front_sign(H, world), k1, center=tuple(center), image_size=image_size,
                                 camera_lat=camera_lat, camera_lon=camera_lon, box_anchor=options.box_anchor)
         except CalibrationError as exc:
             reasons.append(str(exc))
@@ -466,7 +477,7 @@ def associate_and_calibrate(frames: list[FrameBoxes], camera_lat: float, camera_
         consensus = int(np.sum(first_chosen >= 0))
         try:
             found = _refine_association(frames, world, levels, anchors, anchors_index, model, camera_lat, camera_lon,
-                                        (width, height), center_arr, options, fit_options)
+                                        image_size, center, options, fit_options)
         except CalibrationError as exc:
             reasons.append(str(exc))
             continue
@@ -483,23 +494,24 @@ def associate_and_calibrate(frames: list[FrameBoxes], camera_lat: float, camera_
         count = association.associated
         if best is None or count > best[0] or (count == best[0] and np.nanmedian(residual) < best[1]):
             best = (count, float(np.nanmedian(residual)), association)
-    if best is None:
-        far = [why for why in reasons if "given camera position" in why]
-        if far:
-            raise CalibrationError(f"the best camera explaining the track is impossible here: {far[0]}")
-        if misplaced[0] >= options.min_associations:
-            raise CalibrationError(
-                f"the best camera explaining the track is impossible here: it would stand {misplaced[1]:.0f} m from "
-                f"the given camera position (allowed {options.max_nadir_m:g} m; it puts {misplaced[0]} frames' GPS "
-                "on a detected boat): check --camera-lat/--camera-lon")
-        implausible = [why for why in reasons if why.startswith("the camera would") or why.startswith("the focal")]
-        detail = f" (the best candidate: {implausible[0]})" if implausible else ""
+    return (None if best is None else best[2]), reasons
+
+
+def _refuse_without_camera(reasons: list[str], misplaced, options: SearchOptions) -> NoReturn:
+    """CalibrationError saying why no hypothesis gave a camera: the likeliest of the reasons met."""
+    far = [why for why in reasons if "given camera position" in why]
+    if far:
+        raise CalibrationError(f"the best camera explaining the track is impossible here: {far[0]}")
+    if misplaced[0] >= options.min_associations:
         raise CalibrationError(
-            "no camera puts the vessel's GPS track on detected boats: the track may never come into view, the "
-            f"camera position may be wrong, or the detector misses the boat{detail}")
-    association = best[2]
-    _check_trustworthy(association, options)
-    return association
+            f"the best camera explaining the track is impossible here: it would stand {misplaced[1]:.0f} m from "
+            f"the given camera position (allowed {options.max_nadir_m:g} m; it puts {misplaced[0]} frames' GPS "
+            "on a detected boat): check --camera-lat/--camera-lon")
+    implausible = [why for why in reasons if why.startswith("the camera would") or why.startswith("the focal")]
+    detail = f" (the best candidate: {implausible[0]})" if implausible else ""
+    raise CalibrationError(
+        "no camera puts the vessel's GPS track on detected boats: the track may never come into view, the "
+        f"camera position may be wrong, or the detector misses the boat{detail}")
 
 
 def _refine_association(frames, world, levels, anchors, anchors_index, model, camera_lat, camera_lon, image_size,
@@ -540,60 +552,3 @@ def _check_trustworthy(association: Association, options: SearchOptions) -> None
             f"the {count} associated frames are all at about one range ({np.percentile(ranges, 10):.0f} to "
             f"{np.percentile(ranges, 90):.0f} m, 10th to 90th percentile): the fit cannot tell height from tilt; "
             "add videos where the boat runs towards or away from the camera")
-
-
-@dataclass(frozen=True)
-class BoxAnchorMeasurement:
-    """Where down another detector's boxes the vessel's GPS falls, through a fitted camera.
-
-    anchor: the median over the frames (0 box top, 1 bottom); quartiles: its spread; frames: how many frames had a
-    box of that detector around the projected GPS that it calls the vessel of interest.
-    """
-
-    anchor: float
-    quartiles: tuple[float, float]
-    frames: int
-
-
-def measure_box_anchor(model: CameraModel, gps_latlon, levels, boxes, probabilities, min_probability: float = 0.5,
-                       margin_px: float = 3.0, vertical_slack: float = 0.5) -> BoxAnchorMeasurement | None:
-    """The box anchor of a detector whose boxes ``model`` was not fitted on, from the vessel's GPS alone.
-
-    ``gps_latlon`` (N, 2) and ``levels`` (N,) (water level, NaN or None: the model's own) per frame; ``boxes`` and
-    ``probabilities``: that frame's boxes (k, 4) and each one's probability of being the vessel of interest. A
-    frame counts when its GPS projects into the image and into one of its boxes (``margin_px`` across,
-    ``vertical_slack`` of the box height above and below) that says the vessel of interest with at least
-    ``min_probability``; the likeliest such box gives ``(y - y1) / (y2 - y1)``. The label-free fit reads the
-    search detector's boxes at ``model.box_anchor``; the fuser reads the graph's detector's boxes, which sit on the
-    vessel in their own way. None when no frame counts.
-    """
-    gps = np.asarray(gps_latlon, dtype=float).reshape(-1, 2)
-    levels = np.full(len(gps), np.nan) if levels is None else np.asarray(levels, dtype=float).reshape(-1)
-    if not (len(levels) == len(gps) == len(boxes) == len(probabilities)):
-        raise CalibrationError(f"measure_box_anchor: {len(gps)} GPS fixes, {len(levels)} water levels, "
-                               f"{len(boxes)} box sets and {len(probabilities)} probability sets: one of each per "
-                               "frame")
-    fractions = []
-    for (lat, lon), level, frame_boxes, frame_p in zip(gps, levels, boxes, probabilities, strict=True):
-        b = np.asarray(frame_boxes, dtype=float).reshape(-1, 4)
-        p = np.asarray(frame_p, dtype=float).reshape(-1)
-        if b.size == 0:
-            continue
-        camera = model.at_water_level(float(level)) if math.isfinite(level) else model
-        xw, yw = camera.gps_to_world(lat, lon)
-        xs, ys, in_front = camera.world_to_screen(xw, yw)
-        if not (bool(in_front) and camera.in_image(xs, ys)):
-            continue
-        height = b[:, 3] - b[:, 1]
-        around = ((b[:, 0] - margin_px <= xs) & (xs <= b[:, 2] + margin_px) & (height > 0)
-                  & (b[:, 1] - vertical_slack * height <= ys) & (ys <= b[:, 3] + vertical_slack * height)
-                  & (p >= min_probability))
-        if not around.any():
-            continue
-        best = np.flatnonzero(around)[int(np.argmax(p[around]))]
-        fractions.append((float(ys) - b[best, 1]) / height[best])
-    if not fractions:
-        return None
-    f = np.asarray(fractions)
-    q1, q3 = np.percentile(f, [25, 75])
-    return BoxAnchorMeasurement(float(np.median(f)), (float(q1), float(q3)), int(f.size))

@@ -23,13 +23,13 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vessel_tools.calib.dataset import Dataset
 from vessel_calib.gps_track import GpsTrack
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, parse_videos, repo_root
 from vessel_detect import bag_io
 from vessel_detect.sources import VideoSource, jpeg_problem, parse_utc
+from vessel_tools.calib.dataset import Dataset
 
 _NS_PER_S = 1_000_000_000
 MAX_LISTED_PROBLEMS = 10
@@ -110,6 +110,65 @@ def camera_fix_stamps(first_ns: int, rate_hz: float) -> Iterator[int]:
         k += 1
 
 
+class _MessageMerger:
+    """Writes one bag's frames, camera fixes and GPS fixes in time order, counting them in ``result``."""
+
+    def __init__(self, writer, result: BuildResult, options: BuildOptions, camera_latlon: tuple[float, float],
+                 gps: tuple[list[int], list[float], list[float]] | None, margin_ns: int) -> None:
+        self.writer, self.result, self.options = writer, result, options
+        self.camera_lat, self.camera_lon = camera_latlon
+        self.gps_ns, self.gps_lat, self.gps_lon = gps if gps is not None else ([], [], [])
+        self.margin_ns = margin_ns
+        self.gps_index = 0
+        self.fix_stamps: Iterator[int] | None = None
+        self.next_fix_ns: int | None = None
+
+    def gps_until(self, stamp_ns: int) -> None:
+        """Every GPS fix not yet written stamped at or before ``stamp_ns``."""
+        while self.gps_index < len(self.gps_ns) and self.gps_ns[self.gps_index] <= stamp_ns:
+            i = self.gps_index
+            fix = bag_io.nav_sat_fix(
+                self.gps_ns[i], self.gps_lat[i], self.gps_lon[i], frame_id=self.options.gps_frame_id
+            )
+            self.writer.write(self.options.gps_truth_topic, fix)
+            self.result.gps_fixes += 1
+            self.gps_index += 1
+
+    def frame(self, stamp_ns: int, data: bytes) -> None:
+        """One readable frame, after the camera and GPS fixes due by its stamp."""
+        options = self.options
+        if self.fix_stamps is None:
+            self.fix_stamps = camera_fix_stamps(stamp_ns, options.camera_fix_rate_hz)
+            self.next_fix_ns = next(self.fix_stamps)
+            self.result.start_s = stamp_ns / 1e9
+            while self.gps_index < len(self.gps_ns) and self.gps_ns[self.gps_index] < stamp_ns - self.margin_ns:
+                self.gps_index += 1  # before the video's window
+        while self.next_fix_ns is not None and self.next_fix_ns <= stamp_ns:
+            self.gps_until(self.next_fix_ns)
+            fix = bag_io.nav_sat_fix(self.next_fix_ns, self.camera_lat, self.camera_lon, options.camera_alt_m,
+                                     frame_id=options.camera_frame_id, sigma_m=options.camera_sigma_m)
+            self.writer.write(options.camera_fix_topic, fix)
+            self.result.camera_fixes += 1
+            self.next_fix_ns = next(self.fix_stamps, None)
+        self.gps_until(stamp_ns)
+        self.writer.write(options.image_topic, bag_io.compressed_image(stamp_ns, data, options.camera_frame_id, "jpeg"))
+        self.result.frames += 1
+        self.result.end_s = stamp_ns / 1e9
+
+    def finish(self) -> None:
+        """The GPS fixes up to the margin after the last frame."""
+        self.gps_until(bag_io.sec_to_ns(self.result.end_s) + self.margin_ns)
+
+
+def _check_time_order(previous: FrameInput | None, frame: FrameInput) -> None:
+    if previous is not None and frame.stamp_ns <= previous.stamp_ns:
+        raise DataError(
+            f"frames out of time order: {frame.label} at {frame.stamp_ns / 1e9:.3f} s is not after "
+            f"{previous.label} at {previous.stamp_ns / 1e9:.3f} s; fix the frame times (frames.csv utc, "
+            "or --start-utc/--fps) and build again"
+        )
+
+
 def write_bag(
     path: Path,
     frames: Iterable[FrameInput],
@@ -131,7 +190,6 @@ def write_bag(
     started = time.monotonic()
     result = BuildResult(name=name, path=path)
     bag_io.validate_position(camera_lat, camera_lon, "camera position")
-    gps_ns, gps_lat, gps_lon = gps if gps is not None else ([], [], [])
     margin_ns = round(options.gps_margin_s * _NS_PER_S)
     with bag_io.BagWriter(path, overwrite=options.overwrite) as writer:
         for key, value in (custom_data or {}).items():
@@ -140,67 +198,22 @@ def write_bag(
         writer.add_topic(options.camera_fix_topic, bag_io.NAV_SAT_FIX, "latched")
         if gps is not None:
             writer.add_topic(options.gps_truth_topic, bag_io.NAV_SAT_FIX, "reliable")
-        gps_index = 0
-        fix_stamps: Iterator[int] | None = None
-        next_fix_ns: int | None = None
+        merger = _MessageMerger(writer, result, options, (camera_lat, camera_lon), gps, margin_ns)
         previous: FrameInput | None = None
-
-        def write_gps_until(stamp_ns: int) -> None:
-            nonlocal gps_index
-            while gps_index < len(gps_ns) and gps_ns[gps_index] <= stamp_ns:
-                fix = bag_io.nav_sat_fix(
-                    gps_ns[gps_index], gps_lat[gps_index], gps_lon[gps_index], frame_id=options.gps_frame_id
-                )
-                writer.write(options.gps_truth_topic, fix)
-                result.gps_fixes += 1
-                gps_index += 1
-
         for frame in frames:
-            if previous is not None and frame.stamp_ns <= previous.stamp_ns:
-                raise DataError(
-                    f"frames out of time order: {frame.label} at {frame.stamp_ns / 1e9:.3f} s is not after "
-                    f"{previous.label} at {previous.stamp_ns / 1e9:.3f} s; fix the frame times (frames.csv utc, "
-                    "or --start-utc/--fps) and build again"
-                )
+            _check_time_order(previous, frame)
             previous = frame
             data, reason = frame.load()
             if data is None:
                 result.skipped_frames += 1
                 result.problems.append(f"{frame.label}: {reason}; skipped")
                 continue
-            if fix_stamps is None:
-                fix_stamps = camera_fix_stamps(frame.stamp_ns, options.camera_fix_rate_hz)
-                next_fix_ns = next(fix_stamps)
-                result.start_s = frame.stamp_ns / 1e9
-                while gps_index < len(gps_ns) and gps_ns[gps_index] < frame.stamp_ns - margin_ns:
-                    gps_index += 1  # before the video's window
-            while next_fix_ns is not None and next_fix_ns <= frame.stamp_ns:
-                write_gps_until(next_fix_ns)
-                writer.write(
-                    options.camera_fix_topic,
-                    bag_io.nav_sat_fix(
-                        next_fix_ns,
-                        camera_lat,
-                        camera_lon,
-                        options.camera_alt_m,
-                        frame_id=options.camera_frame_id,
-                        sigma_m=options.camera_sigma_m,
-                    ),
-                )
-                result.camera_fixes += 1
-                next_fix_ns = next(fix_stamps, None)
-            write_gps_until(frame.stamp_ns)
-            writer.write(
-                options.image_topic,
-                bag_io.compressed_image(frame.stamp_ns, data, options.camera_frame_id, "jpeg"),
-            )
-            result.frames += 1
-            result.end_s = frame.stamp_ns / 1e9
+            merger.frame(frame.stamp_ns, data)
             if on_frame is not None:
                 on_frame(result.frames)
         if result.frames == 0:
             raise DataError(f"{name}: no readable frame to write (skipped {result.skipped_frames})")
-        write_gps_until(bag_io.sec_to_ns(result.end_s) + margin_ns)
+        merger.finish()
     result.size_bytes = folder_size(path)
     result.seconds = time.monotonic() - started
     return result
@@ -289,6 +302,36 @@ def build_from_dataset(
 # ---------------------------------------------------------------------------------------------------------------
 # Video mode
 # ---------------------------------------------------------------------------------------------------------------
+def _gps_track_file(gps_path: Path, start_utc: float) -> GpsTrack:
+    """The vessel's track from a CSV or GPX file, or a ``DataError`` when it is missing or has no fix."""
+    if not gps_path.is_file():
+        raise DataError(f"GPS file {gps_path} does not exist")
+    track = GpsTrack.from_file(gps_path, day_start=math.floor(start_utc / 86400.0) * 86400.0)
+    if len(track) == 0:
+        raise DataError(f"GPS file {gps_path} has no usable fix ({track.skipped_rows} rows skipped as NaN/garbage)")
+    return track
+
+
+def _warn_if_apart(track: GpsTrack, gps_path, start_utc: float, duration: float, margin_s: float,
+                   report: Callable[[str], None]) -> None:
+    """A warning line when the GPS track and the video's time span do not overlap (a wrong --start-utc)."""
+    t0, t1 = track.time_span()
+    if t1 < start_utc - margin_s or t0 > start_utc + duration + margin_s:
+        report(
+            f"  warning: the GPS track of {gps_path} ({t0:.0f}..{t1:.0f} s) does not overlap the video "
+            f"({start_utc:.0f}..{start_utc + duration:.0f} s): check --start-utc"
+        )
+
+
+def _video_frames(source, video_name: str, max_frames: int | None, jpeg_quality: int) -> Iterator[FrameInput]:
+    """The video's frames re-encoded as JPEG, at most ``max_frames``."""
+    for count, frame in enumerate(source):
+        if max_frames is not None and count >= max_frames:
+            return
+        jpeg = frame.jpeg_bytes(jpeg_quality)
+        yield FrameInput(frame.stamp_ns, f"{video_name} frame {frame.index}", lambda data=jpeg: (data, None))
+
+
 def build_from_video(
     video_path: Path,
     out_dir: Path,
@@ -309,56 +352,30 @@ def build_from_video(
     options = options or BuildOptions()
     name = name or video_path.stem
     problems: list[str] = []
-    source = VideoSource(
-        video_path,
-        start_utc=start_utc,
-        fps=fps,
-        every=every,
-        on_problem=lambda kind, message: problems.append(message),
-    )
+    source = VideoSource(video_path, start_utc=start_utc, fps=fps, every=every,
+                         on_problem=lambda kind, message: problems.append(message))
     total = source.frame_count()
     if max_frames is not None and total is not None:
         total = min(total, max_frames)
     track = None
     if gps_path is not None:
         gps_path = Path(gps_path)
-        if not gps_path.is_file():
-            raise DataError(f"GPS file {gps_path} does not exist")
-        track = GpsTrack.from_file(gps_path, day_start=math.floor(start_utc / 86400.0) * 86400.0)
-        if len(track) == 0:
-            raise DataError(
-                f"GPS file {gps_path} has no usable fix ({track.skipped_rows} rows skipped as NaN/garbage)"
-            )
-
-    def frames() -> Iterator[FrameInput]:
-        for count, frame in enumerate(source):
-            if max_frames is not None and count >= max_frames:
-                return
-            jpeg = frame.jpeg_bytes(options.jpeg_quality)
-            yield FrameInput(frame.stamp_ns, f"{video_path.name} frame {frame.index}", lambda data=jpeg: (data, None))
-
+        track = _gps_track_file(gps_path, start_utc)
     gps = track_fixes(track) if track is not None else None
     if track is not None and report is not None:
-        t0, t1 = track.time_span()
         duration = (total * every / (fps or source.container_fps or 25.0)) if total else 0.0
-        if t1 < start_utc - options.gps_margin_s or t0 > start_utc + duration + options.gps_margin_s:
-            report(
-                f"  warning: the GPS track of {gps_path} ({t0:.0f}..{t1:.0f} s) does not overlap the video "
-                f"({start_utc:.0f}..{start_utc + duration:.0f} s): check --start-utc"
-            )
+        _warn_if_apart(track, gps_path, start_utc, duration, options.gps_margin_s, report)
     try:
         result = write_bag(
             out_dir / name,
-            frames(),
+            _video_frames(source, video_path.name, max_frames, options.jpeg_quality),
             camera_lat=camera_lat,
             camera_lon=camera_lon,
             gps=gps,
             options=options,
             name=name,
-            custom_data={
-                "vessel_detect.source": str(video_path.resolve()),
-                "vessel_detect.builder": "vessel_detect bag_build",
-            },
+            custom_data={"vessel_detect.source": str(video_path.resolve()),
+                         "vessel_detect.builder": "vessel_detect bag_build"},
             on_frame=(lambda n: counter(n, total)) if counter is not None else None,
         )
     finally:
@@ -396,7 +413,8 @@ def _parser() -> argparse.ArgumentParser:
     mode.add_argument("--info", type=Path, nargs="+", metavar="BAG", help="print what bags hold and exit")
     mode.add_argument("--recover", type=Path, metavar="BAG",
                       help="make a bag whose writer died (or that was cut short) readable: every message up to "
-                      "where it breaks, rewritten with its index and metadata.yaml (in place, or to --out)")
+                      "where it breaks, less any chunk whose checksum fails, rewritten with its index and "
+                      "metadata.yaml (in place, keeping the damaged file as BAG.damaged[.N].mcap; or to --out)")
     parser.add_argument("--videos", help="dataset videos, e.g. 13,14 or 7-12 (default: all)")
     parser.add_argument("--out", type=Path, help="folder for the bags (default: <repo>/bags)")
     parser.add_argument("--overwrite", action="store_true",
@@ -483,6 +501,41 @@ class _Counter:
             print(file=sys.stderr)
 
 
+def _run_video(args: argparse.Namespace, out_dir: Path, options: BuildOptions, say: Callable[[str], None]
+               ) -> BuildResult:
+    """Video mode of ``run``: check its options and build the one bag."""
+    missing = [f for f, v in (("--start-utc", args.start_utc), ("--camera-lat", args.camera_lat),
+                              ("--camera-lon", args.camera_lon)) if v is None]
+    if missing:
+        raise DataError(f"video mode needs {', '.join(missing)} (the frames' UTC and the camera position)")
+    if not args.video.is_file():
+        raise DataError(f"video file {args.video} does not exist: check the path")
+    if args.every < 1:
+        raise DataError(f"--every {args.every} must be at least 1")
+    name = args.name or args.video.stem
+    say(f"building {out_dir / name} from {args.video}")
+    counter = _Counter(name)
+    try:
+        result = build_from_video(
+            args.video,
+            out_dir,
+            start_utc=parse_utc(args.start_utc),
+            camera_lat=args.camera_lat,
+            camera_lon=args.camera_lon,
+            gps_path=args.gps,
+            name=name,
+            fps=args.fps,
+            every=args.every,
+            max_frames=args.max_frames,
+            options=options,
+            report=lambda line: (counter.end(), say(line)),
+            counter=counter,
+        )
+    finally:
+        counter.end()
+    return result
+
+
 def run(argv: list[str] | None = None) -> int:
     """Parse arguments and build; raises VesselError on bad input."""
     args = _parser().parse_args(argv)
@@ -497,45 +550,15 @@ def run(argv: list[str] | None = None) -> int:
     if args.recover:
         salvage = bag_io.recover_bag(args.recover, args.out, overwrite=args.overwrite)
         print(f"recovered {args.out or args.recover}: {salvage.describe()}")
-        return 0 if salvage.stopped_at is None else 1
+        return 0 if salvage.complete else 1  # 1: messages were lost (cut short, or damaged chunks left out)
     if args.data is not None and args.video is not None:
         raise DataError("give either --data (a dataset folder) or --video (a video file), not both")
     options = _options(args)
     out_dir = args.out if args.out is not None else _default_out()
     started = time.monotonic()
     if args.video is not None:
-        missing = [f for f, v in (("--start-utc", args.start_utc), ("--camera-lat", args.camera_lat),
-                                  ("--camera-lon", args.camera_lon)) if v is None]
-        if missing:
-            raise DataError(f"video mode needs {', '.join(missing)} (the frames' UTC and the camera position)")
-        if not args.video.is_file():
-            raise DataError(f"video file {args.video} does not exist: check the path")
-        if args.every < 1:
-            raise DataError(f"--every {args.every} must be at least 1")
-        name = args.name or args.video.stem
-        say(f"building {out_dir / name} from {args.video}")
-        counter = _Counter(name)
-        try:
-            result = build_from_video(
-                args.video,
-                out_dir,
-                start_utc=parse_utc(args.start_utc),
-                camera_lat=args.camera_lat,
-                camera_lon=args.camera_lon,
-                gps_path=args.gps,
-                name=name,
-                fps=args.fps,
-                every=args.every,
-                max_frames=args.max_frames,
-                options=options,
-                report=lambda line: (counter.end(), say(line)),
-                counter=counter,
-            )
-        finally:
-            counter.end()
-        results = [result]
+        results = [_run_video(args, out_dir, options, say)]
     else:
-
         data_dir = args.data if args.data is not None else default_data_dir()
         if data_dir is None:
             raise DataError("no dataset folder: pass --data DIR or set VESSEL_DATA (or give --video FILE)")

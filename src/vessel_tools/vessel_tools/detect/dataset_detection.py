@@ -1,4 +1,4 @@
-"""The detector core over a data folder's frames: what ``detect run``, ``detect train`` and ``quantize`` share.
+"""The detector core over a data folder's frames: what ``detect run`` and ``detect train`` share.
 
 Offline tool layer: a data folder (``vessel_tools.calib.dataset``), its calibration, the frames read from disk and the
 detections written as the ``detect run`` CSV.
@@ -16,12 +16,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vessel_tools.calib.dataset import Dataset
 from vessel_calib.params import load_camera_yaml
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row
 from vessel_detect.detector import Detections, VesselDetector
+from vessel_tools.calib.dataset import Dataset
 
 
 def open_dataset(data: str | None):

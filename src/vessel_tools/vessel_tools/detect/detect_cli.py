@@ -30,6 +30,9 @@ import numpy as np
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import output_file, repo_file
+from vessel_detect.detections_csv import read_detections_csv, require_rows_for
+from vessel_detect.detector import VesselDetector
+from vessel_detect.detector_params import build_detector, load_params_file
 from vessel_tools.detect.dataset_detection import (
     camera_for,
     detect_frames,
@@ -37,9 +40,6 @@ from vessel_tools.detect.dataset_detection import (
     open_dataset,
     parse_video_spec,
 )
-from vessel_detect.detections_csv import read_detections_csv, require_rows_for
-from vessel_detect.detector import VesselDetector
-from vessel_detect.detector_params import build_detector, load_params_file
 from vessel_tools.detect.recall import GPS_MARGIN_PX, HIT_IOU, RecallResult, gps_ranking, recall_at  # noqa: F401
 
 # Box size of a vessel from |z_p| (full-resolution pixels): size = a / |z_p| + b.
@@ -257,6 +257,22 @@ def cmd_export_labels(args: argparse.Namespace) -> int:
     frames = dataset.frames(sorted(set(videos or dataset.videos()) | val_videos))
     if not frames:
         raise DataError(f"no frames for videos {args.videos} in {dataset.path / 'frames.csv'}")
+    box_model = _export_box_model(args, dataset, camera, videos)
+    decisions = plan_export(dataset, camera, frames, box_model, args.max_gap_s, args.min_box_px)
+    out = Path(args.out)
+    _empty_export_folders(out, ("train", "val") if val_videos else ("train",))
+    counts, manifest = _write_exported_frames(args, out, decisions, frames, camera.image_size, val_videos)
+    _atomic_write(out / "data.yaml", _data_yaml(args, out, val_videos))
+    _atomic_write(out / "frames.csv", manifest)
+    summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+    written = sum(1 for d in decisions if d.status == "labelled") + (
+        counts.get("out_of_view", 0) if args.negatives == "out-of-view" else 0)
+    print(f"wrote {out}: {written} images ({summary}); data.yaml, frames.csv", file=sys.stderr)
+    return 0
+
+
+def _export_box_model(args: argparse.Namespace, dataset, camera, videos):
+    """The box size from |z_p| of ``--box`` (fitted to the hand boxes when there are enough), printed."""
     box_model = PAPER_BOX if args.box == "paper" else FITTED_BOX
     if args.box == "fitted":
         box_model = _fit_on_labels(dataset, camera, videos) or FITTED_BOX
@@ -265,17 +281,24 @@ def cmd_export_labels(args: argparse.Namespace) -> int:
         f"h = {box_model[1][0]:.0f}/|z_p| + {box_model[1][1]:.0f} (full-resolution px)",
         file=sys.stderr,
     )
-    decisions = plan_export(dataset, camera, frames, box_model, args.max_gap_s, args.min_box_px)
-    out = Path(args.out)
-    splits = ("train", "val") if val_videos else ("train",)
+    return box_model
+
+
+def _empty_export_folders(out: Path, splits: tuple[str, ...]) -> None:
+    """``out/images/SPLIT`` and ``out/labels/SPLIT``, created empty (an earlier export's files are removed)."""
     for split in splits:
         for sub in ("images", "labels"):
             target = out / sub / split
             if target.exists():
                 shutil.rmtree(target)
             target.mkdir(parents=True)
+
+
+def _write_exported_frames(args: argparse.Namespace, out: Path, decisions, frames, image_size,
+                           val_videos: set) -> tuple[dict[str, int], str]:
+    """Copy the images and write the YOLO label files; frames per status and the ``frames.csv`` manifest."""
     record_of = {(r.video, r.frame): r for r in frames}
-    width, height = camera.image_size
+    width, height = image_size
     counts: dict[str, int] = {}
     manifest = io.StringIO()
     writer = csv.writer(manifest, lineterminator="\n")
@@ -299,8 +322,13 @@ def cmd_export_labels(args: argparse.Namespace) -> int:
         box = [f"{v:.1f}" for v in decision.box] if decision.box else ["", "", "", ""]
         writer.writerow([decision.video, decision.frame, split, decision.status, int(write), *box,
                          f"{decision.zp:.3f}" if np.isfinite(decision.zp) else ""])
+    return counts, manifest.getvalue()
+
+
+def _data_yaml(args: argparse.Namespace, out: Path, val_videos: set) -> str:
+    """The YOLO ``data.yaml`` of the export."""
     names = {int(args.class_id): args.class_name}
-    data_yaml = (
+    return (
         "# YOLO training data generated from the vessel's GPS through the calibration (vessel_detect export-labels).\n"
         "# Frames with invalid GPS are left out (the boat may be visible but unlabelled). Out-of-view frames are\n"
         f"# {'included with empty label files (negatives)' if args.negatives == 'out-of-view' else 'left out'}."
@@ -310,13 +338,6 @@ def cmd_export_labels(args: argparse.Namespace) -> int:
         f"val: images/{'val' if val_videos else 'train'}\n"
         f"names:\n" + "".join(f"  {k}: {v}\n" for k, v in names.items())
     )
-    _atomic_write(out / "data.yaml", data_yaml)
-    _atomic_write(out / "frames.csv", manifest.getvalue())
-    summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-    written = sum(1 for d in decisions if d.status == "labelled") + (
-        counts.get("out_of_view", 0) if args.negatives == "out-of-view" else 0)
-    print(f"wrote {out}: {written} images ({summary}); data.yaml, frames.csv", file=sys.stderr)
-    return 0
 
 
 def _fit_on_labels(dataset, camera, videos):
@@ -343,7 +364,17 @@ def build_parser() -> argparse.ArgumentParser:
     """The command-line interface."""
     parser = argparse.ArgumentParser(prog="./vessel detect", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_run_parser(sub)
+    _add_recall_parser(sub)
+    _add_rank_parser(sub)
+    _add_export_labels_parser(sub)
+    from vessel_tools.detect.training.train_cli import add_parser as add_train_parser
 
+    add_train_parser(sub)
+    return parser
+
+
+def _add_run_parser(sub) -> None:
     run = sub.add_parser("run", help="detections of every frame of a dataset folder to CSV")
     run.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
     run.add_argument("--videos", help="e.g. 13-17 or 7,9 (default: all)")
@@ -359,6 +390,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress line")
     run.set_defaults(func=cmd_run)
 
+
+def _add_recall_parser(sub) -> None:
     recall = sub.add_parser("recall", help="recall of the vessel of interest on the hand-labelled frames")
     recall.add_argument("--data")
     recall.add_argument("--videos", default="6-17")
@@ -373,6 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
     recall.add_argument("--out", help="also write the figures as JSON")
     recall.set_defaults(func=cmd_recall)
 
+
+def _add_rank_parser(sub) -> None:
     rank = sub.add_parser("rank", help="how often the most likely box is the vessel, against its GPS (every frame "
                           "with the GPS in view, by range; no hand labels)")
     rank.add_argument("--data")
@@ -384,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
     rank.add_argument("--out", help="also write the figures as JSON")
     rank.set_defaults(func=cmd_rank)
 
+
+def _add_export_labels_parser(sub) -> None:
     export = sub.add_parser("export-labels", help="YOLO training data from the vessel's GPS (no hand labels)")
     export.add_argument("--data")
     export.add_argument("--videos", default="7-12")
@@ -399,14 +436,6 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--class-id", type=int, default=0)
     export.add_argument("--class-name", default="boat")
     export.set_defaults(func=cmd_export_labels)
-
-    from vessel_tools.detect.training.train_cli import add_parser as add_train_parser
-
-    add_train_parser(sub)
-    from vessel_tools.detect.training.quantize import add_parser as add_quantize_parser
-
-    add_quantize_parser(sub)
-    return parser
 
 
 @command_line_tool

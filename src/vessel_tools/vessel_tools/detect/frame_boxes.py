@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from vessel_tools.calib.gps_association import FrameBoxes
 from vessel_calib.gps_track import GpsTrack
 from vessel_calib.params import atomic_write_text
 from vessel_common.errors import DataError
@@ -26,6 +25,7 @@ from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_c
 from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import build_detector, detector_config, load_params_file, open_model
 from vessel_detect.sources import VideoSource
+from vessel_tools.calib.gps_association import FrameBoxes
 
 #: The generic detector's parameters (its cue and masks are left out).
 DEFAULT_DETECTOR_PARAMS = "config/detector_coco.yaml"

@@ -1,0 +1,1 @@
+"""Offline tools of tracking: the ROS-free pipeline, evaluation, simulation and the model fits."""

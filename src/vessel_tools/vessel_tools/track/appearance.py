@@ -58,7 +58,6 @@ from vessel_detect.appearance_model import (
 )
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row
 from vessel_tools.track.distance_model_fit import pixels_from_vessel
-from vessel_track.fuser_settings import load_fuser_settings
 from vessel_tools.track.offline_data import (
     PREDICTION_HEADER,
     DetectionFrame,
@@ -69,6 +68,7 @@ from vessel_tools.track.offline_data import (
     open_dataset,
     prediction_line,
 )
+from vessel_track.fuser_settings import load_fuser_settings
 
 POSITIVE_PX = 20.0
 NEGATIVE_PX = 60.0

@@ -18,16 +18,16 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from vessel_tools.calib.calibration import calibrate_from_labels
 from vessel_calib.params import read_params_yaml, update_params_block
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import parse_videos
-from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_of_world
+from vessel_tools.calib.calibration import calibrate_from_labels
 from vessel_tools.track.error_model_fit import update_params_file
+from vessel_tools.track.offline_data import csv_detections, load_camera, open_dataset
+from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_of_world
 from vessel_track.fuser_settings import load_fuser_settings
 from vessel_track.fusion import FusionConfig, cue_residuals, cue_statistics_of_residuals
-from vessel_tools.track.offline_data import csv_detections, load_camera, open_dataset
 
 
 def _robust_line(u: np.ndarray, s: np.ndarray) -> tuple[float, float, float]:

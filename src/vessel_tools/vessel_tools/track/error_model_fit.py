@@ -24,7 +24,7 @@ from vessel_calib.params import update_params_block
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_track.error_model import KINDS, ErrorModel
-from vessel_track.node_params import FUSER_PARAMETERS
+from vessel_track.parameter_tables import FUSER_PARAMETERS
 
 
 def fit_error_model(distance_m, error_m, kind: str = "origin", quantile: float = 0.8,
@@ -84,7 +84,7 @@ def update_params_file(path: Path, node: str, block: str, values: dict) -> None:
     Comments and layout of the file survive (``vessel_calib.params.update_params_block``); keys new to the
     file get the fuser parameter's description as their comment. Creates the file if needed; written atomically.
     """
-    descriptions = {key: FUSER_PARAMETERS[f"{block}.{key}"][0] for key in values
+    descriptions = {key: FUSER_PARAMETERS[f"{block}.{key}"].description for key in values
                     if f"{block}.{key}" in FUSER_PARAMETERS}
     update_params_block(path, node, block, values, descriptions)
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_tools.calib.dataset import Dataset
 from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, repo_root
 from vessel_detect.detections_csv import read_detections_csv, require_rows_for
+from vessel_tools.calib.dataset import Dataset
 
 
 def open_dataset(data_dir: Path | None):

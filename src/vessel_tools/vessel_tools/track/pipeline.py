@@ -40,17 +40,14 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_tools.calib.calibration import calibrate_from_labels
 from vessel_calib.params import atomic_write_text
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import parse_videos
+from vessel_tools.calib.calibration import calibrate_from_labels
 from vessel_tools.track import appearance
 from vessel_tools.track.distance_model_fit import cross_validated_cue_statistics, fit_distance_model, training_pairs
 from vessel_tools.track.evaluation import evaluate, format_table
-from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
-from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
-from vessel_track.node_params import GPS_PUBLISHER_PARAMETERS, MAX_COAST_RANGE_S
 from vessel_tools.track.offline_data import (
     PREDICTION_HEADER,
     DetectionFrame,
@@ -63,6 +60,9 @@ from vessel_tools.track.offline_data import (
     prediction_line,
     seconds_of_day,
 )
+from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
+from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.parameter_tables import GPS_PUBLISHER_PARAMETERS
 from vessel_track.selection import Trajectory, select_target
 from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
 from vessel_track.tracker import MultiTargetTracker, TrackerConfig, load_tracker_config, node_values
@@ -220,15 +220,13 @@ def trajectories_of(rows: list[TrackRow], motion=None) -> tuple[list[Trajectory]
         data["measured"].append(wt.measured_position)
         data["covariance"].append(wt.measured_covariance)
         data["screen"].append(wt.measured_screen)
-        data["consistent"].append(np.nan if wt.size_consistent is None else float(wt.size_consistent))
     trajectories = []
     for tid, d in per_track.items():
         positions, covariances = np.array(d["filtered"]), np.array(d["filtered_cov"])
         if motion is not None and len(d["stamps"]) >= 3:
             smoothed = rts_smooth(np.array(d["stamps"]), np.array(d["measured"]), np.array(d["covariance"]), motion)
             positions, covariances = smoothed.positions, smoothed.covariances[:, :2, :2]
-        trajectories.append(Trajectory(tid, d["stamps"], positions, d["confidences"], consistent=d["consistent"],
-                                       covariances=covariances))
+        trajectories.append(Trajectory(tid, d["stamps"], positions, d["confidences"], covariances=covariances))
     return trajectories, per_track
 
 
@@ -351,9 +349,9 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
                         config: PipelineConfig, box_anchor: float) -> list[VideoResult]:
     """Run each video with everything fitted on the other training videos: an honest score on training data.
 
-    For each video of ``frames``: the camera is calibrated (``vessel_tools.calib.calibration.calibrate_from_labels``), the
-    distance model fitted and the cue noise measured (itself leave-one-out) on the labelled training videos
-    other than this one; the rest of ``config.settings`` is kept. Used to fit the error model on scores the
+    For each video of ``frames``: the camera is calibrated
+    (``vessel_tools.calib.calibration.calibrate_from_labels``), the distance model fitted and the cue noise
+    measured (itself leave-one-out) on the labelled training videos other than this one; the rest of ``config.settings`` is kept. Used to fit the error model on scores the
     calibration has not seen.
     """
     by_video: dict[int, list[DetectionFrame]] = defaultdict(list)
@@ -535,9 +533,9 @@ def unknown_node_parameters(params_path: Path, parts_dir: Path | None = None) ->
 
 def max_coast_of_params(params_path: Path | None) -> float:
     """The GPS publisher's ``max_coast_s`` of a parameter YAML (the node's default where the file has none)."""
-    default = GPS_PUBLISHER_PARAMETERS["max_coast_s"][0]
+    default = GPS_PUBLISHER_PARAMETERS["max_coast_s"].default
     value = node_values(params_path, "gps_publisher").get("max_coast_s", default) if params_path else default
-    low, high = MAX_COAST_RANGE_S
+    low, high = GPS_PUBLISHER_PARAMETERS["max_coast_s"].value_range
     if not (isinstance(value, float) and low <= value <= high):
         raise DataError(f"{params_path}: gps_publisher max_coast_s must be a floating-point number of seconds from "
                         f"{low:g} to {high:g}, as the node declares it (write 2.0, not 2), got {value!r}; fix the file")

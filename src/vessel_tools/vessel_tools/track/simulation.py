@@ -8,13 +8,14 @@ detections below the horizon, a static false detection (the mooring post of the 
 hidden behind nearer ones and scheduled occlusions. Everything is drawn from one seeded generator, so a
 scenario is reproducible.
 
-ROS-free; used by the tracker's and the fuser's tests and benchmarks.
+ROS-free; used by the tracker's and the fuser's tests and benchmarks. The frames and truth a run gives, and the
+score of a tracker against them, are ``vessel_tools.track.tracking_score``.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +23,7 @@ import numpy as np
 from vessel_calib.camera_model import CameraModel
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
+from vessel_tools.track.tracking_score import SimFrame, SimResult, VesselTruth, run_tracker, score_tracking
 from vessel_track.distance_model import BoxSizeDistanceModel, depth_scale
 from vessel_track.fuser_settings import FuserSettings
 from vessel_track.fusion import fit_cue_statistics
@@ -176,64 +178,6 @@ class SimVessel:
             raise DataError(f"vessel ids must be >= 0 (-1 marks clutter), got {self.vessel_id}")
 
 
-@dataclass
-class SimFrame:
-    """What the detector reports for one image, with the truth behind each box."""
-
-    stamp: float
-    """Epoch seconds."""
-    boxes_xyxy: np.ndarray
-    """(N, 4) px."""
-    scores: np.ndarray
-    """(N,)"""
-    gt_ids: np.ndarray
-    """(N,) vessel id of each box, -1 for a false detection."""
-    static_clutter: np.ndarray
-    """(N,) True for the false detections of a fixed object (the mooring post), a subset of ``gt_ids == -1``."""
-
-    @property
-    def centers(self) -> np.ndarray:
-        """(N, 2) box centres, px."""
-        return (self.boxes_xyxy[:, :2] + self.boxes_xyxy[:, 2:]) / 2.0
-
-
-@dataclass
-class VesselTruth:
-    """Ground truth of one vessel at every frame stamp (NaN where it is not on the water or behind the camera)."""
-
-    stamps: np.ndarray
-    world_xy: np.ndarray
-    """(T, 2) metres east, north of the camera."""
-    screen_xy: np.ndarray
-    """(T, 2) projection of ``world_xy``, px (the true box centre)."""
-    box_wh: np.ndarray
-    """(T, 2) true box size, px."""
-    visible: np.ndarray
-    """(T,) on the water, in front of the camera, inside the image, not occluded."""
-    detected: np.ndarray
-    """(T,) a box of this vessel is in the frame's detections."""
-
-
-@dataclass
-class SimResult:
-    """A simulated run: the frames fed to the tracker and the truth to score it against."""
-
-    frames: list[SimFrame]
-    truth: dict[int, VesselTruth]
-    camera: object
-
-    @property
-    def stamps(self) -> np.ndarray:
-        """(T,) frame stamps, epoch seconds."""
-        return np.array([f.stamp for f in self.frames])
-
-    def truth_gps(self, vessel_id: int) -> tuple[np.ndarray, np.ndarray]:
-        """(lat, lon) of a vessel at every frame stamp (needs a camera with a position)."""
-        xy = self.truth[vessel_id].world_xy
-        lat, lon = self.camera.world_to_gps(xy[:, 0], xy[:, 1])
-        return np.asarray(lat), np.asarray(lon)
-
-
 # ---------------------------------------------------------------------------------------------------- scenario
 
 
@@ -264,77 +208,84 @@ class Scenario:
             raise DataError(f"Scenario vessel ids must be unique, got {ids}")
         camera = self.camera if self.camera is not None else challenge_camera()
         rng = np.random.default_rng(self.seed)
-        det = self.detector
         width, height = camera.image_size
 
         rel = np.arange(0.0, self.duration_s + 1e-9, self.frame_interval_s)
         if self.frame_jitter_s > 0:
             rel = rel + rng.uniform(-self.frame_jitter_s, self.frame_jitter_s, len(rel))
             rel = np.maximum.accumulate(np.maximum(rel, 0.0))
-        n_frames = len(rel)
-
-        truth: dict[int, VesselTruth] = {}
-        for v in self.vessels:
-            on_water = (rel >= v.start_s) & (rel <= v.end_s)
-            xy = v.path.position(rel - v.start_s)
-            xy[~on_water] = np.nan
-            xs, ys, in_front = camera.world_to_screen(xy[:, 0], xy[:, 1])
-            zp = np.abs(camera.zp_of_world(xy[:, 0], xy[:, 1]))
-            wh = v.size_scale * self.box_size.size(np.where(in_front, zp, np.nan))
-            scheduled = np.zeros(n_frames, bool)
-            for t0, t1 in v.occlusions:
-                scheduled |= (rel >= t0) & (rel <= t1)
-            m = det.image_margin_px
-            inside = in_front & on_water & (xs >= m) & (xs <= width - m) & (ys >= m) & (ys <= height - m)
-            truth[v.vessel_id] = VesselTruth(stamps=self.start_stamp + rel, world_xy=xy, screen_xy=np.c_[xs, ys],
-                                             box_wh=wh, visible=inside & ~scheduled,
-                                             detected=np.zeros(n_frames, bool))
+        truth = {v.vessel_id: self._truth_of(v, camera, rel) for v in self.vessels}
 
         horizon = float(np.nanmax(camera.horizon_y(np.linspace(0.0, width, 9))))
         if not math.isfinite(horizon):
             horizon = height / 2.0
         frames: list[SimFrame] = []
-        for k in range(n_frames):
-            boxes: list[np.ndarray] = []
-            scores: list[float] = []
-            gt: list[int] = []
-            static: list[bool] = []
+        for k in range(len(rel)):
             self._hide_behind_nearer(truth, k)
-            for v in self.vessels:
-                tr = truth[v.vessel_id]
-                if not tr.visible[k] or rng.random() < det.miss_prob:
-                    continue
-                c = tr.screen_xy[k] + rng.normal(0.0, det.center_std_px, 2)
-                wh = np.maximum(tr.box_wh[k] * (1.0 + rng.normal(0.0, det.size_std_frac, 2)), 2.0)
-                boxes.append(np.r_[c - wh / 2, c + wh / 2])
-                scores.append(float(rng.uniform(*(v.score_range or det.vessel_score_range))))
-                gt.append(v.vessel_id)
-                static.append(False)
-                tr.detected[k] = True
-            for _ in range(rng.poisson(det.clutter_rate)):
-                w = rng.uniform(det.clutter_size_px[0], det.clutter_size_px[1])
-                h = rng.uniform(det.clutter_size_px[2], det.clutter_size_px[3])
-                cx = rng.uniform(w / 2, width - w / 2)
-                cy = rng.uniform(min(horizon + h / 2, height - h / 2), height - h / 2)
-                boxes.append(np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2]))
+            frames.append(self._detections(k, float(self.start_stamp + rel[k]), truth, rng, horizon, (width, height)))
+        return SimResult(frames=frames, truth=truth, camera=camera)
+
+    def _truth_of(self, v: SimVessel, camera, rel: np.ndarray) -> VesselTruth:
+        """Where vessel ``v`` is at each frame (``rel``: seconds from the start), its true box, when it is visible."""
+        width, height = camera.image_size
+        n_frames = len(rel)
+        on_water = (rel >= v.start_s) & (rel <= v.end_s)
+        xy = v.path.position(rel - v.start_s)
+        xy[~on_water] = np.nan
+        xs, ys, in_front = camera.world_to_screen(xy[:, 0], xy[:, 1])
+        zp = np.abs(camera.zp_of_world(xy[:, 0], xy[:, 1]))
+        wh = v.size_scale * self.box_size.size(np.where(in_front, zp, np.nan))
+        scheduled = np.zeros(n_frames, bool)
+        for t0, t1 in v.occlusions:
+            scheduled |= (rel >= t0) & (rel <= t1)
+        m = self.detector.image_margin_px
+        inside = in_front & on_water & (xs >= m) & (xs <= width - m) & (ys >= m) & (ys <= height - m)
+        return VesselTruth(stamps=self.start_stamp + rel, world_xy=xy, screen_xy=np.c_[xs, ys], box_wh=wh,
+                           visible=inside & ~scheduled, detected=np.zeros(n_frames, bool))
+
+    def _detections(self, k: int, stamp: float, truth: dict[int, VesselTruth], rng, horizon: float,
+                    image_size: tuple[int, int]) -> SimFrame:
+        """Frame ``k`` as the detector reports it: the visible vessels not missed, random and static clutter."""
+        det = self.detector
+        width, height = image_size
+        boxes: list[np.ndarray] = []
+        scores: list[float] = []
+        gt: list[int] = []
+        static: list[bool] = []
+        for v in self.vessels:
+            tr = truth[v.vessel_id]
+            if not tr.visible[k] or rng.random() < det.miss_prob:
+                continue
+            c = tr.screen_xy[k] + rng.normal(0.0, det.center_std_px, 2)
+            wh = np.maximum(tr.box_wh[k] * (1.0 + rng.normal(0.0, det.size_std_frac, 2)), 2.0)
+            boxes.append(np.r_[c - wh / 2, c + wh / 2])
+            scores.append(float(rng.uniform(*(v.score_range or det.vessel_score_range))))
+            gt.append(v.vessel_id)
+            static.append(False)
+            tr.detected[k] = True
+        for _ in range(rng.poisson(det.clutter_rate)):
+            w = rng.uniform(det.clutter_size_px[0], det.clutter_size_px[1])
+            h = rng.uniform(det.clutter_size_px[2], det.clutter_size_px[3])
+            cx = rng.uniform(w / 2, width - w / 2)
+            cy = rng.uniform(min(horizon + h / 2, height - h / 2), height - h / 2)
+            boxes.append(np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2]))
+            scores.append(float(rng.uniform(*det.clutter_score_range)))
+            gt.append(-1)
+            static.append(False)
+        for box in det.static_clutter:
+            if rng.random() < det.static_clutter_prob:
+                jitter = rng.normal(0.0, 2.0, 4)
+                boxes.append(np.asarray(box, dtype=float) + jitter)
                 scores.append(float(rng.uniform(*det.clutter_score_range)))
                 gt.append(-1)
-                static.append(False)
-            for box in det.static_clutter:
-                if rng.random() < det.static_clutter_prob:
-                    jitter = rng.normal(0.0, 2.0, 4)
-                    boxes.append(np.asarray(box, dtype=float) + jitter)
-                    scores.append(float(rng.uniform(*det.clutter_score_range)))
-                    gt.append(-1)
-                    static.append(True)
-            order = rng.permutation(len(boxes))
-            frames.append(SimFrame(
-                stamp=float(self.start_stamp + rel[k]),
-                boxes_xyxy=np.array(boxes, dtype=float).reshape(-1, 4)[order],
-                scores=np.array(scores, dtype=float)[order],
-                gt_ids=np.array(gt, dtype=int)[order],
-                static_clutter=np.array(static, dtype=bool)[order]))
-        return SimResult(frames=frames, truth=truth, camera=camera)
+                static.append(True)
+        order = rng.permutation(len(boxes))
+        return SimFrame(
+            stamp=stamp,
+            boxes_xyxy=np.array(boxes, dtype=float).reshape(-1, 4)[order],
+            scores=np.array(scores, dtype=float)[order],
+            gt_ids=np.array(gt, dtype=int)[order],
+            static_clutter=np.array(static, dtype=bool)[order])
 
     def _hide_behind_nearer(self, truth: dict[int, VesselTruth], k: int) -> None:
         """Mark vessels mostly covered by a nearer vessel's box as not visible in frame ``k``."""
@@ -429,115 +380,6 @@ def uturn_scenario(frame_interval_s: float = 4.0, duration_s: float = 120.0, see
 SCENARIOS = {"harbour": harbour_scenario, "uturn": uturn_scenario}
 
 
-# ---------------------------------------------------------------------------------------------------- scoring
-
-
-@dataclass
-class TrackingMetrics:
-    """How well a tracker followed a simulated run."""
-
-    id_switches: int
-    """Times a vessel's detection went to a different CONFIRMED/COASTING track than its previous one."""
-    tracks_per_vessel: dict[int, int]
-    """Distinct confirmed tracks that received each vessel's detections (1 is perfect)."""
-    false_confirmed_tracks: int
-    """Confirmed tracks whose detections were mostly random clutter."""
-    static_clutter_tracks: int
-    """Confirmed tracks of a static false detection (the mooring post): real objects, rejected by selection."""
-    confirmed_rmse_px: float
-    """RMS distance of confirmed, updated track centres to the vessel's true screen position."""
-    detection_rmse_px: float
-    """RMS distance of the same updates' raw detection centres to the true position."""
-    coverage: float
-    """Share of (vessel, frame) pairs with the vessel visible in which a confirmed track held its detection
-    or a coasting track was within 40 px of it."""
-    samples: int
-
-    def summary(self) -> str:
-        """One line for logs and benchmark output."""
-        return (f"id_switches={self.id_switches} tracks_per_vessel={self.tracks_per_vessel} "
-                f"false_confirmed={self.false_confirmed_tracks} static_clutter_tracks={self.static_clutter_tracks} "
-                f"confirmed_rmse={self.confirmed_rmse_px:.2f}px detection_rmse={self.detection_rmse_px:.2f}px "
-                f"coverage={self.coverage:.3f} n={self.samples}")
-
-
-def run_tracker(result: SimResult, update: Callable[[float, np.ndarray, np.ndarray], Iterable]) -> list[list]:
-    """Feed every frame to ``update(stamp, boxes, scores)`` (e.g. ``MultiTargetTracker.update``); its outputs."""
-    return [list(update(f.stamp, f.boxes_xyxy, f.scores)) for f in result.frames]
-
-
-_STATIC = -2
-
-
-def score_tracking(result: SimResult, outputs: Sequence[Sequence]) -> TrackingMetrics:
-    """Score tracker outputs (one list of ``TrackState`` per frame of ``result``) against the truth.
-
-    A track state's detection is found from its ``measured_center`` (the raw centre it was updated with),
-    which gives the vessel id behind it.
-    """
-    if len(outputs) != len(result.frames):
-        raise DataError(f"{len(outputs)} tracker outputs for {len(result.frames)} frames")
-    last_track: dict[int, str] = {}
-    switches = 0
-    tracks_of: dict[int, set[str]] = {}
-    votes: dict[str, list[int]] = {}
-    confirmed_ids: set[str] = set()
-    err_track: list[float] = []
-    err_det: list[float] = []
-    visible_frames = 0
-    covered_frames = 0
-    for k, (frame, states) in enumerate(zip(result.frames, outputs, strict=True)):
-        centers = frame.centers
-        held: set[int] = set()
-        for s in states:
-            status = int(s.status)
-            if status == 3:
-                continue
-            if status in (1, 2):
-                confirmed_ids.add(s.track_id)
-            if s.measured_center is None or not len(centers):
-                continue
-            d = np.hypot(*(centers - np.asarray(s.measured_center)).T)
-            j = int(np.argmin(d))
-            if d[j] > 1e-6:
-                continue
-            gt = _STATIC if frame.static_clutter[j] else int(frame.gt_ids[j])
-            votes.setdefault(s.track_id, []).append(gt)
-            if status == 0 or gt < 0:
-                continue
-            held.add(gt)
-            if last_track.get(gt, s.track_id) != s.track_id:
-                switches += 1
-            last_track[gt] = s.track_id
-            tracks_of.setdefault(gt, set()).add(s.track_id)
-            true_xy = result.truth[gt].screen_xy[k]
-            err_track.append(float(np.hypot(*(np.asarray(s.center) - true_xy))))
-            err_det.append(float(np.hypot(*(np.asarray(s.measured_center) - true_xy))))
-        for vid, tr in result.truth.items():
-            if tr.visible[k]:
-                visible_frames += 1
-                if vid in held or _coasting_near(states, tr.screen_xy[k]):
-                    covered_frames += 1
-
-    def majority(tid: str) -> int:
-        values, counts = np.unique(votes.get(tid, [-1]), return_counts=True)
-        return int(values[np.argmax(counts)])
-
-    kinds = [majority(tid) for tid in confirmed_ids]
-    return TrackingMetrics(
-        id_switches=switches,
-        tracks_per_vessel={vid: len(tracks_of.get(vid, ())) for vid in sorted(result.truth)},
-        false_confirmed_tracks=sum(1 for g in kinds if g == -1),
-        static_clutter_tracks=sum(1 for g in kinds if g == _STATIC),
-        confirmed_rmse_px=float(np.sqrt(np.mean(np.square(err_track)))) if err_track else math.nan,
-        detection_rmse_px=float(np.sqrt(np.mean(np.square(err_det)))) if err_det else math.nan,
-        coverage=covered_frames / visible_frames if visible_frames else math.nan,
-        samples=len(err_track))
-
-
-def _coasting_near(states: Sequence, true_xy: np.ndarray, radius_px: float = 40.0) -> bool:
-    return any(int(s.status) == 2 and float(np.hypot(*(np.asarray(s.center) - true_xy))) < radius_px
-               for s in states)
 
 
 # ---------------------------------------------------------------------------------------------------- benchmark

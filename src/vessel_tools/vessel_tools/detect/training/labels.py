@@ -12,11 +12,6 @@ calibration's ``box_anchor`` of the way down the vessel's box. The box around th
   ``match_x_iou``) and agrees with it in width, else the size model's width, ``a / |z_p| + b``, fitted robustly
   to the same COCO boxes.
 
-At long range the projection can miss the boat by a box width, and the COCO detector often has no box there. With
-``snap_widths`` set, a vessel box that no COCO box matched is moved onto the nearest seed box of agreeing size
-whose centre lies within that many of its widths: a COCO box, or a box of an earlier trained model of the same
-frames (``snap_boxes``). It keeps the seed's horizontal extent and centre height, and the size model's height.
-
 Every other COCO box at or above ``other_score`` is labelled ``vessel`` (the second class), so other boats never
 become negatives; weaker COCO boxes and the ones overlapping the vessel's box become ignore regions, where no
 objectness loss is taken. Frames whose GPS is stale (the vessel may be visible but unlabelled) are left out.
@@ -49,7 +44,6 @@ class LabelSettings:
     other_score: float = 0.3
     ignore_score: float = 0.05
     min_box_px: float = 3.0
-    snap_widths: float = 0.0
 
 
 @dataclass
@@ -62,7 +56,7 @@ class FrameLabels:
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     classes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     ignore: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
-    target_source: str = ""  # coco | snapped | size_model | "" (no vessel of interest in view)
+    target_source: str = ""  # coco | size_model | "" (no vessel of interest in view)
     abs_zp: float = math.nan
 
 
@@ -188,29 +182,11 @@ def _widths_agree(boxes: np.ndarray, width: float, settings: LabelSettings) -> n
     return np.maximum(widths / width, width / widths) <= settings.max_size_ratio
 
 
-def _snapped(expected: np.ndarray, seeds: np.ndarray, settings: LabelSettings) -> np.ndarray | None:
-    """``expected`` moved onto the nearest seed of agreeing width within ``snap_widths`` of its width, or None."""
-    if not settings.snap_widths > 0 or len(seeds) == 0:
-        return None
-    width = expected[2] - expected[0]
-    agrees = _widths_agree(seeds, width, settings)
-    centre = (expected[:2] + expected[2:]) / 2.0
-    distance = np.hypot(*((seeds[:, :2] + seeds[:, 2:]) / 2.0 - centre).T)
-    distance = np.where(agrees, distance, np.inf)
-    best = int(np.argmin(distance))
-    if not distance[best] <= settings.snap_widths * width:
-        return None
-    shift = (seeds[best, 1] + seeds[best, 3]) / 2.0 - centre[1]
-    return np.array([seeds[best, 0], expected[1] + shift, seeds[best, 2], expected[3] + shift])
-
-
 def frame_labels(projection: Projection, boxes: np.ndarray, scores: np.ndarray, size_model: SizeModel, anchor: float,
-                 image_wh: tuple[int, int], settings: LabelSettings, snap_boxes: np.ndarray | None = None
-                 ) -> FrameLabels:
+                 image_wh: tuple[int, int], settings: LabelSettings) -> FrameLabels:
     """The targets of one frame from its projection and the generic detector's boxes."""
     boxes = np.asarray(boxes, float).reshape(-1, 4)
     scores = np.asarray(scores, float).reshape(-1)
-    snap_boxes = np.zeros((0, 4)) if snap_boxes is None else np.asarray(snap_boxes, float).reshape(-1, 4)
     if not projection.valid:
         return FrameLabels(projection.video, projection.frame, "gps_invalid")
     width, height = image_wh
@@ -233,10 +209,6 @@ def frame_labels(projection: Projection, boxes: np.ndarray, scores: np.ndarray, 
                 target = np.array([boxes[best, 0], expected[1], boxes[best, 2], expected[3]])
                 used[best] = True
                 source = "coco"
-        if source == "size_model":
-            snapped = _snapped(expected, np.concatenate([boxes[scores >= settings.ignore_score], snap_boxes]), settings)
-            if snapped is not None:
-                target, source = snapped, "snapped"
         target = np.clip(target, [0, 0, 0, 0], [width, height, width, height])
         if target[2] - target[0] >= settings.min_box_px and target[3] - target[1] >= settings.min_box_px:
             targets.append(target)
@@ -264,20 +236,15 @@ def frame_labels(projection: Projection, boxes: np.ndarray, scores: np.ndarray, 
 
 
 def generate_labels(dataset, camera, frames, detections, settings: LabelSettings | None = None,
-                    water_levels=None, snap_detections=None) -> tuple[list[FrameLabels], SizeModel]:
-    """Labels of every frame and the size model they used. ``detections``: (video, frame) -> (boxes, scores).
-
-    ``snap_detections`` (same shape): further seed boxes for ``settings.snap_widths``, e.g. a trained model's.
-    """
+                    water_levels=None) -> tuple[list[FrameLabels], SizeModel]:
+    """Labels of every frame and the size model they used. ``detections``: (video, frame) -> (boxes, scores)."""
     settings = settings or LabelSettings()
     projections = project_gps(dataset, camera, frames, settings.max_gps_gap_s, water_levels)
     anchor = float(camera.box_anchor)
     size_model = fit_size_model(projections, detections, anchor, settings.height_quantile)
     empty = (np.zeros((0, 4)), np.zeros(0))
-    snap_detections = snap_detections or {}
     labels = [
-        frame_labels(p, *detections.get((p.video, p.frame), empty), size_model, anchor, camera.image_size, settings,
-                     snap_detections.get((p.video, p.frame), empty)[0])
+        frame_labels(p, *detections.get((p.video, p.frame), empty), size_model, anchor, camera.image_size, settings)
         for p in projections
     ]
     return labels, size_model

@@ -97,12 +97,8 @@ def inside_any(centres: torch.Tensor, boxes: torch.Tensor) -> torch.Tensor:
         cy < boxes[None, :, 3])).any(1)
 
 
-def yolox_loss(levels, targets, box_weight: float = 5.0, class_min_height_px: float = 0.0) -> LossParts:
-    """The loss of a batch; ``targets``: per image ``(boxes (G, 4) xyxy, classes (G,), ignore (M, 4))``.
-
-    ``class_min_height_px``: boxes lower than this (network pixels) teach objectness and box but not the class, so
-    that a boat too small to tell apart is not learnt as one class or the other (0: every box teaches its class).
-    """
+def yolox_loss(levels, targets, box_weight: float = 5.0) -> LossParts:
+    """The loss of a batch; ``targets``: per image ``(boxes (G, 4) xyxy, classes (G,), ignore (M, 4))``."""
     raw_boxes, obj_logits, cls_logits, grids, strides = flatten_levels(levels)
     pred = decode_boxes(raw_boxes, grids, strides)
     centres = (grids + 0.5) * strides[:, None]
@@ -124,9 +120,8 @@ def yolox_loss(levels, targets, box_weight: float = 5.0, class_min_height_px: fl
             iou = torch.diagonal(pairwise_iou_cxcywh(boxes_fg, gts))
             box_losses.append((1.0 - iou**2).sum())
             cls_target = F.one_hot(gt_classes[matched[fg]], cls_logits.shape[2]).float() * ious[fg, None]
-            cls_weight = ((gts[:, 3] - gts[:, 1]) >= class_min_height_px).float()[:, None]
-            cls_losses.append((F.binary_cross_entropy_with_logits(cls_logits[b][fg], cls_target, reduction="none")
-                               * cls_weight).sum())
+            cls_losses.append(F.binary_cross_entropy_with_logits(cls_logits[b][fg], cls_target,
+                                                                 reduction="none").sum())
             num_fg += int(fg.sum())
         obj_losses.append((F.binary_cross_entropy_with_logits(obj_logits[b], obj_target, reduction="none")
                            * weight).sum())

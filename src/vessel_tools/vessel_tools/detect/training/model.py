@@ -161,7 +161,7 @@ def export_onnx(model: TrainableYolox, path: str | Path, input_hw: tuple[int, in
     """Write the model as ONNX (opset 17, batch 1), input ``images``, output ``output``.
 
     The input height and width are left free (the network is convolutional to its output), with ``input_hw``
-    recorded as the usual size; the detector runs it at that size, and at other sizes for the far strip.
+    recorded as the usual size, the size the detector runs it at.
     """
     head = ExportHead(model).eval()
     dummy = torch.full((1, 3, *input_hw), 114.0)

@@ -22,6 +22,4 @@ class TrainSettings:
     band_margin_px: float = 40.0
     val_every: int = 5
     val_score: float = 0.05
-    class_min_height_px: float = 0.0  # boxes lower than this (network px) teach no class (loss.yolox_loss)
-    ema_decay: float = 0.0  # 0: validate and export the last weights; else their moving average (trainer.WeightAverage)
     augment: AugmentSettings = field(default_factory=AugmentSettings)

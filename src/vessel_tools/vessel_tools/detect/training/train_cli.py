@@ -13,22 +13,33 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vessel_common.errors import DataError
 from vessel_common.paths import repo_file, repo_root
 
+if TYPE_CHECKING:
+    from vessel_tools.detect.training.labels import FrameLabels, LabelSettings, SizeModel
+    from vessel_tools.detect.training.settings import TrainSettings
+
 
 def add_parser(sub) -> None:
     """Register ``train`` on the ``detect`` sub-command parser."""
-    from vessel_tools.detect.training.labels import LabelSettings
-    from vessel_tools.detect.training.settings import TrainSettings
-
-    defaults = TrainSettings()
     train = sub.add_parser("train", help="fine-tune the detector on labels generated from the vessel's GPS")
+    _add_data_arguments(train)
+    _add_recipe_arguments(train)
+    train.set_defaults(func=cmd_train)
+
+
+def _add_data_arguments(train: argparse.ArgumentParser) -> None:
+    """The frames, calibration, seed boxes and start model ``train`` reads, and the model it writes."""
+    from vessel_tools.detect.training.labels import LabelSettings
+
     train.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
     train.add_argument("--videos", default="7-12", help="training videos (default 7-12)")
     train.add_argument("--val-videos", default="",
@@ -49,34 +60,19 @@ def add_parser(sub) -> None:
                        help="longest time between the two GPS fixes bracketing a frame for its position to be "
                             "interpolated and the frame labelled, s; frames in longer gaps are left out "
                             "(default %(default)g)")
-    train.add_argument("--snap-widths", type=float, default=LabelSettings().snap_widths,
-                       help="a vessel box no COCO box matched moves onto the nearest seed box of its size within this "
-                            "many box widths (the projection misses far boats by about one; default 0: off)")
-    train.add_argument("--snap-detections",
-                       help="a `detect run` CSV of these frames by an earlier trained model: more seed boxes for "
-                            "--snap-widths (default: the COCO boxes only)")
     train.add_argument("--init-model", help="start weights, ONNX (default: the shared COCO YOLOX-Nano)")
+
+
+def _add_recipe_arguments(train: argparse.ArgumentParser) -> None:
+    """The optimisation, augmentation and export settings of ``train``, defaulting to ``TrainSettings``."""
+    from vessel_tools.detect.training.settings import TrainSettings
+
+    defaults = TrainSettings()
     train.add_argument("--epochs", type=int, default=defaults.epochs)
     train.add_argument("--batch-size", type=int, default=defaults.batch_size)
     train.add_argument("--lr", type=float, default=defaults.learning_rate)
     train.add_argument("--seed", type=int, default=defaults.seed)
     train.add_argument("--val-every", type=int, default=defaults.val_every)
-    train.add_argument("--ema-decay", type=float, default=defaults.ema_decay,
-                       help="validate and export a moving average of the weights with this decay per step, e.g. "
-                            f"0.99 (default {defaults.ema_decay:g}: the last weights)")
-    train.add_argument("--class-min-height", type=float, default=defaults.class_min_height_px,
-                       help="boxes lower than this many network pixels teach objectness but not their class (a boat "
-                            f"too small to tell apart; default {defaults.class_min_height_px:g}: every box)")
-    train.add_argument("--zoom-other", type=float, default=defaults.augment.zoom_other,
-                       help="share of the close-up crops centred on another boat of the frame instead of the vessel "
-                            f"of interest (default {defaults.augment.zoom_other:g}: all on the vessel)")
-    train.add_argument("--paste-target", type=float, default=defaults.augment.paste_target,
-                       help="share of the training frames that first get a copy of another frame's vessel of interest "
-                            "(its GPS-generated box) on the same rows, clear of the other boxes (default "
-                            f"{defaults.augment.paste_target:g}: none)")
-    train.add_argument("--paste-shift", type=float, default=defaults.augment.paste_shift_px,
-                       help="how far left or right of where it was the copy may land, px (default "
-                            f"{defaults.augment.paste_shift_px:g}: anywhere on its rows; 0: its own place)")
     scale_range = ",".join(f"{v:g}" for v in defaults.augment.scale_range)
     train.add_argument("--scale-range", default=scale_range,
                        help="LO,HI: ordinary crops are resized by a factor drawn log-uniformly from this range (below "
@@ -89,7 +85,6 @@ def add_parser(sub) -> None:
                        help="exported network input WIDTHxHEIGHT, multiples of 32 (default 1280x352: the band)")
     train.add_argument("--crop-size", default=f"{defaults.augment.crop_wh[0]}x{defaults.augment.crop_wh[1]}",
                        help="training crop WIDTHxHEIGHT, multiples of 32")
-    train.set_defaults(func=cmd_train)
 
 
 def _colour_jitter(text: str) -> dict[str, float]:
@@ -143,8 +138,8 @@ def coco_detections(args, dataset, frames, camera) -> dict:
 
     if args.coco_detections:
         return read_detections_csv(Path(args.coco_detections))
-    from vessel_tools.detect.dataset_detection import detect_frames, detections_csv_text
     from vessel_detect.detector_params import build_detector, load_params_file
+    from vessel_tools.detect.dataset_detection import detect_frames, detections_csv_text
 
     values, _ = load_params_file(args.coco_params)
     values["appearance_model"] = ""
@@ -163,48 +158,64 @@ def recorded_command(args: argparse.Namespace) -> str:
     return "./vessel detect " + " ".join(getattr(args, "command_line", None) or sys.argv[1:])
 
 
+@dataclass
+class _TrainingData:
+    """What ``train`` learns from: the frames, their labels and images, and the validation boxes."""
+
+    dataset: object  # vessel_tools.calib.dataset.Dataset
+    camera: object  # vessel_calib.camera_model.CameraModel
+    init_model: Path
+    labels: list[FrameLabels]  # every frame's
+    usable: list[FrameLabels]  # the frames trained on: valid GPS and a readable image
+    images: dict  # (video, frame) -> BGR image, training and validation frames
+    counts: dict[str, int]
+    size_model: SizeModel
+    label_settings: LabelSettings
+    references: dict  # (video, frame) -> the vessel's boxes the validation scores against
+    reference_name: str
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     """Generate labels, train, export, and describe the model."""
-    from vessel_tools.detect.dataset_detection import camera_for, open_dataset, parse_video_spec
-    from vessel_detect.detector_params import load_params_file
-    from vessel_detect.model_store import ModelSpec, resolve_model
-    from vessel_tools.detect.training.augment import AugmentSettings, band_input
-    from vessel_tools.detect.training.labels import LabelSettings, generate_labels
-    from vessel_tools.detect.training.model_card import model_card
-    from vessel_tools.detect.training.settings import TrainSettings
-    from vessel_tools.detect.training.trainer import labels_csv, read_images, save_model, train
+    from vessel_tools.detect.training.trainer import train
 
     out = Path(args.out)
     if out.suffix != ".onnx":
         raise DataError(f"--out {out}: the model is written as ONNX, give a path ending in .onnx")
+    settings = _train_settings(args)
+    data = _training_data(args)
+    model, result = train(data.init_model, data.usable, data.images, data.camera, settings, data.references,
+                          data.reference_name, log=lambda m: print(m, file=sys.stderr, flush=True))
+    _write_model(args, out, model, result, settings, data)
+    return 0
+
+
+def _train_settings(args: argparse.Namespace) -> TrainSettings:
+    """The ``TrainSettings`` of the command line, or a ``DataError`` naming the option that is out of range."""
+    from vessel_tools.detect.training.augment import AugmentSettings
+    from vessel_tools.detect.training.settings import TrainSettings
+
     input_w, input_h = _size(args.input_size, "--input-size")
     crop = _size(args.crop_size, "--crop-size")
     scale_range = _scale_range(args.scale_range)
     settings = TrainSettings(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
-                             class_min_height_px=args.class_min_height, ema_decay=args.ema_decay,
                              augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
-                                                     zoom_other=args.zoom_other, paste_target=args.paste_target,
-                                                     paste_shift_px=args.paste_shift,
                                                      **_colour_jitter(args.colour_jitter)))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
-    if not (math.isfinite(args.zoom_other) and 0 <= args.zoom_other <= 1):
-        raise DataError(f"--zoom-other must be a share between 0 and 1, got {args.zoom_other}")
-    if not (math.isfinite(args.paste_target) and 0 <= args.paste_target <= 1):
-        raise DataError(f"--paste-target must be a share between 0 and 1, got {args.paste_target}")
-    if not (math.isfinite(args.paste_shift) and args.paste_shift >= 0):
-        raise DataError(f"--paste-shift must be a number of pixels >= 0, got {args.paste_shift}")
-    if not (math.isfinite(args.ema_decay) and 0 <= args.ema_decay < 1):
-        raise DataError(f"--ema-decay must be 0 (off) or a decay below 1 such as 0.99, got {args.ema_decay}")
-    if not (math.isfinite(args.snap_widths) and 0 <= args.snap_widths <= 5):
-        raise DataError(f"--snap-widths must be a number of box widths between 0 and 5, got {args.snap_widths}")
     if not (math.isfinite(args.max_gps_gap) and 0 < args.max_gps_gap <= 60):
         raise DataError(f"--max-gps-gap must be a number of seconds above 0 and at most 60, got {args.max_gps_gap}")
-    if args.snap_detections and not args.snap_widths > 0:
-        raise DataError("--snap-detections needs --snap-widths above 0 (the seed boxes are used only for snapping)")
-    if not (math.isfinite(settings.class_min_height_px) and settings.class_min_height_px >= 0):
-        raise DataError(f"--class-min-height must be a number of pixels >= 0, got {args.class_min_height}")
+    return settings
+
+
+def _training_data(args: argparse.Namespace) -> _TrainingData:
+    """Open the dataset and the calibration, generate the labels, read the frames and the validation boxes."""
+    from vessel_detect.detector_params import load_params_file
+    from vessel_tools.detect.dataset_detection import camera_for, open_dataset, parse_video_spec
+    from vessel_tools.detect.training.labels import LabelSettings, generate_labels
+    from vessel_tools.detect.training.trainer import read_images
+
     dataset = open_dataset(args.data)
     videos = parse_video_spec(args.videos)
     val_videos = parse_video_spec(args.val_videos) if args.val_videos else videos
@@ -215,58 +226,87 @@ def cmd_train(args: argparse.Namespace) -> int:
     frames = dataset.frames(videos)
     if not frames:
         raise DataError(f"no frames for videos {args.videos} in {dataset.path / 'frames.csv'}")
-    init_model = Path(args.init_model) if args.init_model else resolve_model(ModelSpec("", "", ""),
-                                                                             allow_download=False)
-    if not Path(init_model).is_file():
-        raise DataError(f"start model {init_model} not found: pass --init-model yolox_nano.onnx (the COCO YOLOX-Nano)")
+    init_model = _init_model(args)
     water = _water_levels(args, args.params)
     detections = coco_detections(args, dataset, frames, camera)
-    label_settings = LabelSettings(max_gps_gap_s=args.max_gps_gap, snap_widths=args.snap_widths)
-    snap_detections = None
-    if args.snap_detections:
-        from vessel_detect.detections_csv import read_detections_csv
-
-        snap_detections = read_detections_csv(Path(args.snap_detections), confidence="score")
-    labels, size_model = generate_labels(dataset, camera, frames, detections, label_settings, water, snap_detections)
+    label_settings = LabelSettings(max_gps_gap_s=args.max_gps_gap)
+    labels, size_model = generate_labels(dataset, camera, frames, detections, label_settings, water)
     usable = [lab for lab in labels if lab.status != "gps_invalid"]
     val_only = [f for f in dataset.frames(val_videos) if f.video not in set(videos)] if val_videos and videos else []
     images = read_images(frames + val_only, log=lambda m: print(m, file=sys.stderr))
     usable = [lab for lab in usable if (lab.video, lab.frame) in images]
+    counts = _label_counts(labels)
+    _print_labels(labels, usable, counts, size_model)
+    references, reference_name = _val_references(dataset, val_videos, labels, images)
+    return _TrainingData(dataset, camera, init_model, labels, usable, images, counts, size_model, label_settings,
+                         references, reference_name)
+
+
+def _init_model(args: argparse.Namespace) -> Path:
+    """The start weights: ``--init-model`` or the shared COCO YOLOX-Nano, which must exist."""
+    from vessel_detect.model_store import ModelSpec, resolve_model
+
+    init_model = Path(args.init_model) if args.init_model else resolve_model(ModelSpec("", "", ""),
+                                                                             allow_download=False)
+    if not Path(init_model).is_file():
+        raise DataError(f"start model {init_model} not found: pass --init-model yolox_nano.onnx (the COCO YOLOX-Nano)")
+    return init_model
+
+
+def _label_counts(labels: list[FrameLabels]) -> dict[str, int]:
+    """Frames per ``status/target_source``, e.g. ``labelled/coco``."""
     counts = {}
     for lab in labels:
         key = f"{lab.status}{'/' + lab.target_source if lab.target_source else ''}"
         counts[key] = counts.get(key, 0) + 1
+    return counts
+
+
+def _print_labels(labels: list[FrameLabels], usable: list[FrameLabels], counts: dict[str, int],
+                  size_model: SizeModel) -> None:
+    """One line on stderr: the frames used, their boxes and the size model."""
     print(f"labels: {len(usable)} frames of {len(labels)} ({', '.join(f'{k} {v}' for k, v in sorted(counts.items()))})"
           f"; {sum(int((lab.classes == 1).sum()) for lab in usable)} other vessels, "
           f"{sum(len(lab.ignore) for lab in usable)} ignore regions; size model w = {size_model.width[0]:.0f}/|z_p| "
           f"+ {size_model.width[1]:.1f}, h = {size_model.height[0]:.0f}/|z_p| + {size_model.height[1]:.1f} "
           f"({size_model.n_points} COCO boxes at the GPS)", file=sys.stderr)
-    references, reference_name = _val_references(dataset, val_videos, labels, images)
-    model, result = train(init_model, usable, images, camera, settings, references, reference_name,
-                          log=lambda m: print(m, file=sys.stderr, flush=True))
+
+
+def _write_model(args: argparse.Namespace, out: Path, model, result, settings: TrainSettings,
+                 data: _TrainingData) -> None:
+    """Export ``out`` and write its class names, labels, summary (``.json``) and model card (``.md``)."""
+    from vessel_tools.detect.training.augment import band_input
+    from vessel_tools.detect.training.model_card import model_card
+    from vessel_tools.detect.training.trainer import labels_csv, save_model
+
     out.parent.mkdir(parents=True, exist_ok=True)
-    probe_key = sorted(images)[0]
-    probe = band_input(images[probe_key], camera, settings.input_hw, settings.band_margin_px)
+    probe_key = sorted(data.images)[0]
+    probe = band_input(data.images[probe_key], data.camera, settings.input_hw, settings.band_margin_px)
     result.onnx_max_abs_diff = save_model(model, out, settings, probe)
-    out.with_suffix(".labels.csv").write_text(labels_csv(labels))
-    summary = {
-        "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "command": recorded_command(args),
-        "data": str(dataset.path), "videos": args.videos, "val_videos": args.val_videos or args.videos,
-        "calibration": _relative(args.calib), "init_model": str(init_model), "settings": _jsonable(settings),
-        "label_settings": _jsonable(label_settings), "label_counts": counts,
-        "size_model": {"width": size_model.width, "height": size_model.height, "n_points": size_model.n_points},
-        "history": result.history, "seconds": result.seconds, "onnx_max_abs_diff": result.onnx_max_abs_diff,
-        "validation": None if result.validation is None else {
-            "reference": reference_name, "frames": result.validation.frames,
-            "recall": result.validation.frame_recall, "top1": result.validation.top_rate},
-    }
+    out.with_suffix(".labels.csv").write_text(labels_csv(data.labels))
+    summary = _summary(args, result, settings, data)
     out.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
     out.with_suffix(".md").write_text(model_card(out, summary))
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB; ONNX matches PyTorch to {result.onnx_max_abs_diff:.1e}), "
           f"{out.with_suffix('.names').name}, {out.with_suffix('.labels.csv').name}, {out.with_suffix('.json').name}, "
           f"{out.with_suffix('.md').name} in {result.seconds / 60:.1f} min", file=sys.stderr)
-    return 0
+
+
+def _summary(args: argparse.Namespace, result, settings: TrainSettings, data: _TrainingData) -> dict:
+    """The training run as the ``.json`` next to the model records it (and the model card reads it)."""
+    size_model = data.size_model
+    return {
+        "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": recorded_command(args),
+        "data": str(data.dataset.path), "videos": args.videos, "val_videos": args.val_videos or args.videos,
+        "calibration": _relative(args.calib), "init_model": str(data.init_model), "settings": _jsonable(settings),
+        "label_settings": _jsonable(data.label_settings), "label_counts": data.counts,
+        "size_model": {"width": size_model.width, "height": size_model.height, "n_points": size_model.n_points},
+        "history": result.history, "seconds": result.seconds, "onnx_max_abs_diff": result.onnx_max_abs_diff,
+        "validation": None if result.validation is None else {
+            "reference": data.reference_name, "frames": result.validation.frames,
+            "recall": result.validation.frame_recall, "top1": result.validation.top_rate},
+    }
 
 
 def _relative(path: str | None) -> str | None:

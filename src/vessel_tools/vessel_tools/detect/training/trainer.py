@@ -6,7 +6,6 @@ runs on the CPU with a fixed thread count.
 
 from __future__ import annotations
 
-import copy
 import csv
 import io
 import math
@@ -91,36 +90,6 @@ class TrainResult:
     onnx_max_abs_diff: float = math.nan
 
 
-class WeightAverage:
-    """An exponential moving average of the weights and batch-norm statistics, as YOLOX trains with.
-
-    A small training set makes the last step's weights depend on the last few batches; their average over the
-    last hundred or so steps does not. The decay ramps up, ``min(decay, (1 + n) / (10 + n))`` after ``n`` updates,
-    so the start weights fade out quickly.
-    """
-
-    def __init__(self, model: torch.nn.Module, decay: float):
-        if not 0.0 < decay < 1.0:
-            raise DataError(f"the weight average's decay must be between 0 and 1, got {decay}")
-        self.decay = decay
-        self.updates = 0
-        self.model = copy.deepcopy(model).eval()
-        for parameter in self.model.parameters():
-            parameter.requires_grad_(False)
-
-    @torch.no_grad()
-    def update(self, model: torch.nn.Module) -> None:
-        """Move the average towards ``model``'s current weights."""
-        self.updates += 1
-        decay = min(self.decay, (1.0 + self.updates) / (10.0 + self.updates))
-        current = model.state_dict()
-        for name, value in self.model.state_dict().items():
-            if value.dtype.is_floating_point:
-                value.mul_(decay).add_(current[name].detach(), alpha=1.0 - decay)
-            else:
-                value.copy_(current[name])
-
-
 def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, settings: TrainSettings,
           val_references: dict | None = None, val_reference_name: str = "", log=print) -> tuple[TrainableYolox,
                                                                                                  TrainResult]:
@@ -132,11 +101,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
     rng = np.random.default_rng(settings.seed)
     model = TrainableYolox(init_model, CLASS_NAMES)
     optimiser = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
-    average = WeightAverage(model, settings.ema_decay) if settings.ema_decay > 0 else None
-    kept = model if average is None else average.model  # the weights validated and returned
     band_top = band_top_px(camera, settings.band_margin_px)
-    donors = [(images[(lab.video, lab.frame)], lab) for lab in labels if np.any(lab.classes == 0)] \
-        if settings.augment.paste_target > 0 else None
     steps_per_epoch = max(1, math.ceil(len(labels) / settings.batch_size))
     started = time.monotonic()
     history = []
@@ -149,20 +114,18 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
         fg = 0
         for first in range(0, len(order), settings.batch_size):
             batch = [labels[i] for i in order[first : first + settings.batch_size]]
-            samples = [random_sample(images[(lab.video, lab.frame)], lab, band_top, rng, settings.augment, donors)
+            samples = [random_sample(images[(lab.video, lab.frame)], lab, band_top, rng, settings.augment)
                        for lab in batch]
             for group in optimiser.param_groups:
                 group["lr"] = _lr_at(step, steps_per_epoch, settings)
             levels = model(torch.from_numpy(np.stack([s.image for s in samples])))
-            parts = yolox_loss(levels, _targets(samples), class_min_height_px=settings.class_min_height_px)
+            parts = yolox_loss(levels, _targets(samples))
             if not torch.isfinite(parts.total):
                 raise ModelError(f"training diverged at epoch {epoch} (loss {float(parts.total)}): lower --lr")
             optimiser.zero_grad(set_to_none=True)
             parts.total.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
             optimiser.step()
-            if average is not None:
-                average.update(model)
             step += 1
             sums += [float(parts.total), parts.box, parts.objectness, parts.classes]
             fg += parts.foreground
@@ -173,7 +136,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
                 f"cls {mean[3]:.3f})  {entry['seconds']:.0f} s")
         if val_references and (epoch % settings.val_every == 0 or epoch == settings.epochs):
             model.eval()
-            detector = band_detector(TorchDetectorModel(kept, settings.input_hw), camera, settings.val_score,
+            detector = band_detector(TorchDetectorModel(model, settings.input_hw), camera, settings.val_score,
                                      settings.input_hw)
             validation = validate(detector, images, val_references)
             entry.update(val_recall=validation.frame_recall, val_top1=validation.top_rate, val_frames=validation.frames)
@@ -182,7 +145,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
         history.append(entry)
         log(line)
     model.eval()
-    return kept, TrainResult(history, validation, time.monotonic() - started)
+    return model, TrainResult(history, validation, time.monotonic() - started)
 
 
 def onnx_parity(model: TrainableYolox, onnx_path: Path, sample: np.ndarray) -> float:
