@@ -108,9 +108,8 @@ def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_di
 
 def test_a_recording_whose_recorder_died_is_recovered_and_kept(tmp_path):
     """The demo used to abort with no output at all when the recorder was killed with -9."""
-    from vessel_fixtures import detect_synthetic as synthetic
-
     from vessel_detect import bag_io
+    from vessel_fixtures import detect_synthetic as synthetic
     from vessel_tools.demo import VideoRun, readable_recording
 
     recording = tmp_path / "video_13"

@@ -37,22 +37,25 @@ _BY_LAYER = {
                  vessel_calib vessel_calib.geodesy
                  vessel_detect vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.calibration_parameters vessel_calib.params vessel_calib.gps_track
-               vessel_calib.water_level
+               vessel_calib.water_level vessel_calib.pinhole vessel_calib.radial_lens vessel_calib.camera_model_params
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
                vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
                vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing
+               vessel_detect.class_names vessel_detect.network_input
                vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
-               vessel_track.fuser_settings vessel_track.parameter_tables""",
-    "ros": """vessel_common.node_support vessel_common.node_parameters vessel_calib.camera_parameters vessel_detect.bag_io
-              vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params""",
+               vessel_track.fuser_settings vessel_track.parameter_tables vessel_track.message_checks""",
+    "ros": """vessel_common.node_support vessel_common.node_parameters vessel_calib.camera_parameters
+              vessel_detect.bag_io vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params""",
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
                 vessel_track.gps_publisher_node""",
     "bringup": """vessel_bringup vessel_bringup.graph_nodes vessel_bringup.graph_watcher vessel_bringup.graph""",
     "tools": """vessel_tools.calib vessel_tools.calib.dataset vessel_tools.calib.calibration
                 vessel_tools.calib.calibration_plot vessel_tools.calib.gps_association
+                vessel_tools.calib.pairs_csv vessel_tools.calib.pair_checks vessel_tools.calib.homography
+                vessel_tools.calib.box_anchor
                 vessel_tools.detect vessel_tools.detect.dataset_detection vessel_tools.detect.detect_cli
                 vessel_tools.detect.frame_boxes vessel_tools.detect.bag_build vessel_tools.detect.recall
                 vessel_tools.detect.training vessel_tools.detect.training.augment vessel_tools.detect.training.labels
@@ -62,11 +65,14 @@ _BY_LAYER = {
                 vessel_tools.detect.training.trainer
                 vessel_tools.track vessel_tools.track.offline_data vessel_tools.track.pipeline
                 vessel_tools.track.evaluation vessel_tools.track.appearance vessel_tools.track.distance_model_fit
-                vessel_tools.track.error_model_fit vessel_tools.track.simulation""",
+                vessel_tools.track.error_model_fit vessel_tools.track.simulation
+                vessel_tools.track.tracking_score vessel_tools.track.pipeline_results""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
                vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart
                vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page
-               vessel_tools.parameter_docs""",
+               vessel_tools.parameter_docs
+               vessel_tools.calibrate_options vessel_tools.calibrate_pairs vessel_tools.calibrate_box_anchor
+               vessel_tools.calibrate_output vessel_tools.bench_graph vessel_tools.bench_report""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 

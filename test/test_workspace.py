@@ -159,3 +159,35 @@ def test_each_tool_script_answers_help(package, executable, ros_env, tmp_path):
     assert done.returncode == 0, done.stderr
     assert "usage:" in done.stdout and "Traceback" not in done.stderr and list(tmp_path.iterdir()) == []
 
+
+
+RUNTIME_PACKAGES = ("vessel_msgs", "vessel_common", "vessel_calib", "vessel_track")
+
+
+@pytest.mark.slow
+def test_the_runtime_builds_and_imports_alone(tmp_path):
+    """``colcon build --packages-up-to vessel_track``: what a robot installs, without bringup or the offline tools.
+
+    The built nodes import in an environment that has only that install (and the Python packages of the venv).
+    """
+    venv = REPO_ROOT / ".venv"
+    if not (venv / "bin" / "colcon").is_file():
+        pytest.skip("no colcon in .venv: run ./vessel setup")
+    env = {"HOME": os.environ.get("HOME", "/root"), "PATH": f"{venv / 'bin'}:/usr/bin:/bin",
+           "AMENT_PREFIX_PATH": str(venv), "CMAKE_PREFIX_PATH": str(venv), "LD_LIBRARY_PATH": str(venv / "lib"),
+           "PYTHONWARNINGS": "ignore", "VIRTUAL_ENV": str(venv)}
+    build = subprocess.run(
+        ["colcon", "--log-base", str(tmp_path / "log"), "build", "--base-paths", "src", "third_party/ros2",
+         "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install"),
+         "--metas", "colcon.meta", "--packages-up-to", "vessel_track", "--event-handlers", "console_direct-",
+         "--cmake-args", f"-DPython3_EXECUTABLE={venv / 'bin' / 'python'}", "-DPython3_FIND_VIRTUALENV=ONLY"],
+        cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
+    assert sorted(p.name for p in (tmp_path / "install").iterdir() if p.is_dir()) == sorted(RUNTIME_PACKAGES)
+    check = ("import importlib.util, vessel_track.tracker_node, vessel_track.fuser_node, "
+             "vessel_track.gps_publisher_node; assert importlib.util.find_spec('vessel_tools') is None; "
+             "assert importlib.util.find_spec('vessel_detect') is None; print(vessel_track.__file__)")
+    imported = subprocess.run(["bash", "-c", f"source {tmp_path / 'install' / 'setup.bash'} && python -c \"{check}\""],
+                              env=env, capture_output=True, text=True, timeout=120)
+    assert imported.returncode == 0, imported.stderr[-2000:]
+    assert str(tmp_path / "install") in imported.stdout

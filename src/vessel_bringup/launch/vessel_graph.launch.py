@@ -25,6 +25,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
 from vessel_bringup.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
@@ -34,7 +35,6 @@ from vessel_bringup.graph_nodes import (
     file_parameters,
     sim_time_for_source,
 )
-
 from vessel_common.errors import VesselError
 
 

@@ -6,9 +6,9 @@ import signal
 
 import pytest
 import yaml
-from vessel_bringup.graph_nodes import GRAPH_NODES
 
 from vessel_bringup import graph
+from vessel_bringup.graph_nodes import GRAPH_NODES
 
 
 class _FakeProcess:
@@ -137,6 +137,62 @@ def test_a_camera_source_that_does_not_exist_is_refused_before_any_node_starts(t
         assert err.startswith("error: source ") and "video_99 does not exist" in err, err
 
 
+class _RunnerOfNoProcess:
+    """A ``GraphRunner`` that starts nothing; it reports a failure after ``patience_s`` so a hung stop cannot hang."""
+
+    patience_s = 30.0
+    made: list[_RunnerOfNoProcess] = []
+
+    def __init__(self, params, log_dir=None, echo=False):
+        import time
+
+        self.running, self.spares, self.spares_wanted, self.stops = {}, {}, set(), 0
+        self.give_up = time.monotonic() + self.patience_s
+        self.made.append(self)
+
+    def start(self, node, parameters=None):
+        self.running[node.name] = graph.RunningNode(node, _FakeProcess(), None, None, parameters or {})
+
+    def failed(self):
+        import time
+
+        return ["tracker"] if time.monotonic() > self.give_up else []
+
+    def repeat_promotions(self):
+        pass
+
+    def stop(self, names=None, timeout_s=15.0):
+        self.stops += 1
+        return {name: 0 for name in self.running}
+
+
+def _signal_inside_its_own_handler(before, handled):
+    """Once the runner's SIGINT handler is in place, run it with another run of it at every line, then once more."""
+    import sys
+    import time
+
+    while signal.getsignal(signal.SIGINT) is before:
+        time.sleep(0.01)
+    handler, nested = signal.getsignal(signal.SIGINT), [False]
+
+    def at_every_line(frame, event, arg):  # a second signal arriving between any two lines of the first's handler
+        if event == "line" and not nested[0]:
+            nested[0] = True
+            try:
+                handler(signal.SIGTERM, None)
+            finally:
+                nested[0] = False
+        return at_every_line
+
+    sys.settrace(at_every_line)
+    try:
+        handler(signal.SIGINT, None)
+    finally:
+        sys.settrace(None)
+    handler(signal.SIGINT, None)  # and a third one right after
+    handled.set()
+
+
 def test_a_signal_arriving_inside_the_signal_handler_neither_deadlocks_nor_keeps_the_graph_running(monkeypatch,
                                                                                                     capsys):
     """The SIGINT/SIGTERM handler called ``threading.Event.set()``, which holds a lock while it runs.
@@ -146,66 +202,19 @@ def test_a_signal_arriving_inside_the_signal_handler_neither_deadlocks_nor_keeps
     hung for good with every node running. Here the runner's own handler is run again at every line of its first
     run (what a signal arriving there does), then once more; the runner must stop at once.
     """
-    import sys
     import threading
     import time
 
-    class FakeRunner:
-        """Starts no process; reports a failure after ``patience_s`` so that a hung stop cannot hang the test."""
-
-        patience_s = 30.0
-
-        def __init__(self, params, log_dir=None, echo=False):
-            self.running, self.spares, self.spares_wanted, self.stops = {}, {}, set(), 0
-            self.give_up = time.monotonic() + self.patience_s
-            runners.append(self)
-
-        def start(self, node, parameters=None):
-            self.running[node.name] = graph.RunningNode(node, _FakeProcess(), None, None, parameters or {})
-
-        def failed(self):
-            return ["tracker"] if time.monotonic() > self.give_up else []
-
-        def repeat_promotions(self):
-            pass
-
-        def stop(self, names=None, timeout_s=15.0):
-            self.stops += 1
-            return {name: 0 for name in self.running}
-
-    runners: list[FakeRunner] = []
-    monkeypatch.setattr(graph, "GraphRunner", FakeRunner)
+    monkeypatch.setattr(graph, "GraphRunner", _RunnerOfNoProcess)
+    monkeypatch.setattr(_RunnerOfNoProcess, "made", [])
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     handled = threading.Event()
-
-    def two_signals_at_once():
-        while signal.getsignal(signal.SIGINT) is before[0]:  # until the runner has put its handler in place
-            time.sleep(0.01)
-        handler, nested = signal.getsignal(signal.SIGINT), [False]
-
-        def at_every_line(frame, event, arg):  # a second signal arriving between any two lines of the first
-            if event == "line" and not nested[0]:
-                nested[0] = True
-                try:
-                    handler(signal.SIGTERM, None)
-                finally:
-                    nested[0] = False
-            return at_every_line
-
-        sys.settrace(at_every_line)
-        try:
-            handler(signal.SIGINT, None)
-        finally:
-            sys.settrace(None)
-        handler(signal.SIGINT, None)  # and a third one right after
-        handled.set()
-
-    threading.Thread(target=two_signals_at_once, daemon=True).start()
+    threading.Thread(target=_signal_inside_its_own_handler, args=(before[0], handled), daemon=True).start()
     started = time.monotonic()
     status = graph.main(["--nodes", "tracker"])
     assert handled.wait(5.0), "the signal handler deadlocked on its own lock"
-    assert time.monotonic() - started < FakeRunner.patience_s / 2, "the runner did not stop on the signal"
+    assert time.monotonic() - started < _RunnerOfNoProcess.patience_s / 2, "the runner did not stop on the signal"
     err = capsys.readouterr().err
-    assert status == 0 and runners[0].stops == 1, err
+    assert status == 0 and [runner.stops for runner in _RunnerOfNoProcess.made] == [1], err
     assert "[graph] SIGINT: stopping every node" in err or "[graph] SIGTERM: stopping every node" in err
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before  # handlers put back

@@ -432,6 +432,81 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def _start_consumers(args: argparse.Namespace, runner: GraphRunner, wanted: list[str], sim_time: bool) -> None:
+    """Start the recorder and every wanted node but the camera, consumers first, with their hot standbys."""
+    known = {node.name: node for node in GRAPH_NODES}
+    if args.record is not None:
+        runner.start(RECORDER, {"output": str(args.record), "use_sim_time": sim_time})
+    for name in reversed(wanted):  # consumers first, so nothing the camera sends is missed
+        if name == "camera":
+            continue
+        overrides = {"use_sim_time": sim_time}
+        if args.respawn and not args.no_state_files and name in STATEFUL_NODES:
+            overrides["state_file"] = str(runner.state_file(name))
+        runner.start(known[name], overrides)
+        print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
+        if args.hot_standby and name in STANDBY_NODES:
+            runner.spares_wanted.add(name)
+            spare = runner.start_spare(name)
+            print(f"[graph] started {spare.namespace}/{name}: its hot standby", file=sys.stderr)
+
+
+def _start_camera(args: argparse.Namespace, runner: GraphRunner, wanted: list[str], sim_time: bool,
+                  stop_requested: StopRequest) -> None:
+    """Start the camera once its readers have matched (unless ``--no-wait``); KeyboardInterrupt on a stop."""
+    camera = next(node for node in GRAPH_NODES if node.name == "camera")
+    if args.no_wait:
+        print("[graph] --no-wait: the camera starts before its readers have matched", file=sys.stderr)
+    elif set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
+        watcher = GraphWatcher()
+        try:
+            wait_until_connected(runner, watcher, args.connect_timeout, "see the nodes' output above",
+                                 stop_requested, with_recorder=args.record is not None, spares=set(runner.spares))
+        finally:
+            watcher.close()
+        print("[graph] every link from the detector to the GPS publisher is matched", file=sys.stderr)
+    elif "detector" in wanted:  # the tracking runs elsewhere (another host or namespace)
+        watcher = GraphWatcher()
+        try:
+            wait_until_connected(runner, watcher, args.connect_timeout, "is the tracker running and "
+                                 "reachable (same ROS_DOMAIN_ID and network)?", stop_requested, detector_only=True)
+        finally:
+            watcher.close()
+        print("[graph] the detector's output is matched by a tracker", file=sys.stderr)
+    overrides = {"use_sim_time": sim_time}
+    if args.source:
+        overrides["source"] = args.source
+    if args.rate is not None:
+        overrides["rate"] = args.rate
+    overrides.update(camera_waits_for_detector(runner.file_parameters("camera"), overrides,
+                                               "detector" in wanted and not args.no_wait))
+    runner.start(camera, overrides)
+    print(f"[graph] started camera: {camera.role}", file=sys.stderr)
+
+
+def _run_until_stopped(args: argparse.Namespace, runner: GraphRunner, stop_requested: StopRequest) -> None:
+    """Watch the nodes (respawn, replace spares) until a stop is asked for, the source ends or a node fails."""
+    backoff: dict[str, float] = {}  # node -> monotonic time before which it is not restarted
+    spare_failures: dict[str, int] = {}
+    while not stop_requested.is_set():
+        time.sleep(0.2)
+        if args.exit_at_end and "camera" in runner.running and runner.running["camera"].process.poll() is not None:
+            print("[graph] camera source ended", file=sys.stderr)
+            time.sleep(2.0)
+            break
+        _replace_dead_spares(runner, spare_failures)
+        runner.repeat_promotions()
+        failed = runner.failed()
+        if failed and args.respawn:
+            if not _respawn(runner, failed, backoff):
+                break
+        elif failed:
+            print(f"[graph] node(s) exited with an error: {failed}", file=sys.stderr)
+            break
+    if stop_requested.is_set():
+        print(f"[graph] {signal.Signals(stop_requested.signal).name}: stopping every node", file=sys.stderr)
+
+
 @command_line_tool
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph until Ctrl-C (or the end of the source with --exit-at-end)."""
@@ -441,7 +516,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         params = [args.params or default_params_file(), args.calib or default_calibration_file()]
         wanted = [name.strip() for name in args.nodes.split(",") if name.strip()]
-        known = {node.name: node for node in GRAPH_NODES}
+        known = {node.name for node in GRAPH_NODES}
         unknown = [name for name in wanted if name not in known]
         if unknown:
             raise VesselError(f"unknown node(s) {unknown}: choose from {sorted(known)}")
@@ -451,74 +526,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             check_source(args.source or str(runner.file_parameters("camera").get("source") or ""))
         stop_requested.install()
-        backoff: dict[str, float] = {}  # node -> monotonic time before which it is not restarted
-        spare_failures: dict[str, int] = {}
         if args.hot_standby and not args.respawn:
             raise VesselError("--hot-standby needs --respawn: the spares replace nodes that die")
         sim_time = sim_time_for_source(args.source or "") if args.sim_time == "auto" else args.sim_time == "true"
         if sim_time:
             print("[graph] use_sim_time: the nodes follow the replay's /clock", file=sys.stderr)
-        if args.record is not None:
-            runner.start(RECORDER, {"output": str(args.record), "use_sim_time": sim_time})
-        for name in reversed(wanted):  # consumers first, so nothing the camera sends is missed
-            if name == "camera":
-                continue
-            overrides = {"use_sim_time": sim_time}
-            if args.respawn and not args.no_state_files and name in STATEFUL_NODES:
-                overrides["state_file"] = str(runner.state_file(name))
-            runner.start(known[name], overrides)
-            print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
-            if args.hot_standby and name in STANDBY_NODES:
-                runner.spares_wanted.add(name)
-                spare = runner.start_spare(name)
-                print(f"[graph] started {spare.namespace}/{name}: its hot standby", file=sys.stderr)
+        _start_consumers(args, runner, wanted, sim_time)
         if "camera" in wanted:
-            if args.no_wait:
-                print("[graph] --no-wait: the camera starts before its readers have matched", file=sys.stderr)
-            elif set(wanted) >= {"detector", "tracker", "fuser", "gps_publisher"}:
-                watcher = GraphWatcher()
-                try:
-                    wait_until_connected(runner, watcher, args.connect_timeout, "see the nodes' output above",
-                                         stop_requested, with_recorder=args.record is not None,
-                                         spares=set(runner.spares))
-                finally:
-                    watcher.close()
-                print("[graph] every link from the detector to the GPS publisher is matched", file=sys.stderr)
-            elif "detector" in wanted:  # the tracking runs elsewhere (another host or namespace)
-                watcher = GraphWatcher()
-                try:
-                    wait_until_connected(runner, watcher, args.connect_timeout, "is the tracker running and "
-                                         "reachable (same ROS_DOMAIN_ID and network)?", stop_requested,
-                                         detector_only=True)
-                finally:
-                    watcher.close()
-                print("[graph] the detector's output is matched by a tracker", file=sys.stderr)
-            overrides = {"use_sim_time": sim_time}
-            if args.source:
-                overrides["source"] = args.source
-            if args.rate is not None:
-                overrides["rate"] = args.rate
-            overrides.update(camera_waits_for_detector(runner.file_parameters("camera"), overrides,
-                                                       "detector" in wanted and not args.no_wait))
-            runner.start(known["camera"], overrides)
-            print(f"[graph] started camera: {known['camera'].role}", file=sys.stderr)
-        while not stop_requested.is_set():
-            time.sleep(0.2)
-            if args.exit_at_end and "camera" in runner.running and runner.running["camera"].process.poll() is not None:
-                print("[graph] camera source ended", file=sys.stderr)
-                time.sleep(2.0)
-                break
-            _replace_dead_spares(runner, spare_failures)
-            runner.repeat_promotions()
-            failed = runner.failed()
-            if failed and args.respawn:
-                if not _respawn(runner, failed, backoff):
-                    break
-            elif failed:
-                print(f"[graph] node(s) exited with an error: {failed}", file=sys.stderr)
-                break
-        if stop_requested.is_set():
-            print(f"[graph] {signal.Signals(stop_requested.signal).name}: stopping every node", file=sys.stderr)
+            _start_camera(args, runner, wanted, sim_time, stop_requested)
+        _run_until_stopped(args, runner, stop_requested)
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
         return 0 if all(code == 0 for name, code in statuses.items() if not name.endswith("(standby)")) else 1
@@ -528,7 +544,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise
     finally:
         stop_requested.restore()
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_h
 
 from vessel_calib import geodesy
 from vessel_calib.camera_model import CameraModel
 from vessel_common.errors import CalibrationError
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_h
 
 PAPER_H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]
 PAPER_K1 = -4.053e-7

@@ -2,7 +2,6 @@ import os
 
 import pytest
 import yaml
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON
 
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.params import (
@@ -15,6 +14,7 @@ from vessel_calib.params import (
     write_params_yaml,
 )
 from vessel_common.errors import CalibrationError
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON
 
 PAPER_H = [[-441.0, 379.0, -1000.0], [-217.0, -56.5, -548.0], [-0.512, -0.144, 1.0]]
 

@@ -3,11 +3,11 @@ import math
 
 import numpy as np
 import pytest
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, T0, offset_pinhole, tidal_pairs
 
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.water_level import WaterLevelTable, load_water_level
 from vessel_common.errors import CalibrationError, DataError
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, T0, offset_pinhole, tidal_pairs
 from vessel_tools.calib.calibration import calibrate, evaluate
 
 

@@ -224,41 +224,13 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
 
     None if the layout is not block-style YAML this can edit.
     """
-    top = {}
-    for i, line in enumerate(lines):
-        if _is_content(line) and _indent(line) == 0:
-            parsed = _key_line(line)
-            if parsed is None:
-                return None
-            top.setdefault(parsed[1], i)
-
-    def key_lines(indent: int, old_comments: Mapping[str, str], old_lines: Mapping[str, str] | None = None
-                  ) -> list[str]:
-        """The block's lines: keys already in the file first, in their order and with their comments.
-
-        A key whose value does not change keeps its line as it was; a changed one keeps its comment's column.
-        """
-        old_lines = old_lines or {}
-        order = [key for key in old_comments if key in values] + [key for key in values if key not in old_comments]
-        out = []
-        for key in order:
-            text = yaml_value_text(values[key])
-            old_line = old_lines.get(key)
-            if old_line is not None and _same_value(old_line, text):
-                out.append(old_line)
-                continue
-            comment = old_comments.get(key) or comments.get(key, "")
-            line = f"{' ' * indent}{key}: {text}"
-            if comment:
-                column = _comment_column(old_line) if old_line is not None else None
-                line = line.ljust(column) + f"# {comment}" if column and column >= len(line) + 2 else \
-                    f"{line}  # {comment}"
-            out.append(line)
-        return out
-
+    top = _top_level_keys(lines)
+    if top is None:
+        return None
     if node not in top:
         tail = [""] if lines and lines[-1].strip() else []
-        return lines + tail + [f"{yaml_value_text(node)}:", "  ros__parameters:", f"    {block}:"] + key_lines(6, {})
+        return (lines + tail + [f"{yaml_value_text(node)}:", "  ros__parameters:", f"    {block}:"]
+                + _key_lines(values, comments, 6))
     node_at = top[node]
     if not _is_block_header(lines[node_at]):
         return None
@@ -266,8 +238,8 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
     params_at = _children(lines, node_at, node_end).get("ros__parameters")
     if params_at is None:
         indent = _indent(lines[node_at]) + 2
-        insert = [f"{' ' * indent}ros__parameters:", f"{' ' * (indent + 2)}{block}:"] + key_lines(indent + 4, {})
-        return lines[:node_end] + insert + lines[node_end:]
+        insert = [f"{' ' * indent}ros__parameters:", f"{' ' * (indent + 2)}{block}:"]
+        return lines[:node_end] + insert + _key_lines(values, comments, indent + 4) + lines[node_end:]
     if not _is_block_header(lines[params_at]):
         return None
     params_end = _span_end(lines, params_at)
@@ -275,8 +247,29 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
     if block_at is None:
         siblings = [i for i in range(params_at + 1, params_end) if _is_content(lines[i])]
         indent = _indent(lines[siblings[0]]) if siblings else _indent(lines[params_at]) + 2
-        insert = [f"{' ' * indent}{block}:"] + key_lines(indent + 2, {})
+        insert = [f"{' ' * indent}{block}:"] + _key_lines(values, comments, indent + 2)
         return lines[:params_end] + insert + lines[params_end:]
+    return _rewrite_block(lines, block_at, values, comments)
+
+
+def _top_level_keys(lines: list[str]) -> dict[str, int] | None:
+    """The file's top-level keys (node names) -> their line index; None if a top-level line is not a key."""
+    top = {}
+    for i, line in enumerate(lines):
+        if _is_content(line) and _indent(line) == 0:
+            parsed = _key_line(line)
+            if parsed is None:
+                return None
+            top.setdefault(parsed[1], i)
+    return top
+
+
+def _rewrite_block(lines: list[str], block_at: int, values: Mapping[str, Any],
+                   comments: Mapping[str, str]) -> list[str]:
+    """``lines`` with the block headed at ``block_at`` holding ``values``; its keys keep their lines and comments.
+
+    A block written flow style on one line (``camera: {K1: 0}``) becomes a block-style one.
+    """
     block_end = _span_end(lines, block_at)
     block_indent = _indent(lines[block_at])
     head, comment = _split_comment(_key_line(lines[block_at])[2])
@@ -293,7 +286,35 @@ def _replace_block_text(lines: list[str], node: str, block: str, values: Mapping
         for key, i in sorted(old.items(), key=lambda item: item[1]):
             old_comments[key] = _split_comment(_key_line(lines[i])[2])[1]
             old_lines[key] = lines[i]
-    return lines[:block_at] + [header] + key_lines(key_indent, old_comments, old_lines) + lines[block_end:]
+    return (lines[:block_at] + [header] + _key_lines(values, comments, key_indent, old_comments, old_lines)
+            + lines[block_end:])
+
+
+def _key_lines(values: Mapping[str, Any], comments: Mapping[str, str], indent: int,
+               old_comments: Mapping[str, str] | None = None, old_lines: Mapping[str, str] | None = None
+               ) -> list[str]:
+    """The block's lines: keys already in the file first, in their order and with their comments.
+
+    A key whose value does not change keeps its line as it was; a changed one keeps its comment's column.
+    """
+    old_comments = old_comments or {}
+    old_lines = old_lines or {}
+    order = [key for key in old_comments if key in values] + [key for key in values if key not in old_comments]
+    out = []
+    for key in order:
+        text = yaml_value_text(values[key])
+        old_line = old_lines.get(key)
+        if old_line is not None and _same_value(old_line, text):
+            out.append(old_line)
+            continue
+        comment = old_comments.get(key) or comments.get(key, "")
+        line = f"{' ' * indent}{key}: {text}"
+        if comment:
+            column = _comment_column(old_line) if old_line is not None else None
+            line = line.ljust(column) + f"# {comment}" if column and column >= len(line) + 2 else \
+                f"{line}  # {comment}"
+        out.append(line)
+    return out
 
 
 def _same_value(line: str, value_text: str) -> bool:

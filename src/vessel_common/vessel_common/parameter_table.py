@@ -83,13 +83,15 @@ class ParameterTable:
     """Every parameter of one node, in the order its part file lists them.
 
     ``node``: the node's default name (its block in a parameter file). ``title``: the part file's first comment
-    line, what the node is. ``notes``: further comment lines of the part file.
+    line, what the node is. ``notes``: further comment lines of the part file. ``is_node``: false for a tool that
+    reads its options as ROS parameters but does not run (nothing of it is read-only while running).
     """
 
     node: str
     title: str
     params: tuple[Param, ...]
     notes: tuple[str, ...] = field(default=())
+    is_node: bool = True
 
     def __post_init__(self) -> None:
         names = [p.name for p in self.params]
@@ -164,7 +166,7 @@ def part_file_text(table: ParameterTable) -> str:
             lines.append(f"{'  ' * (len(opened) + 2)}{group}:")
             opened.append(group)
         indent = "  " * (len(groups) + 2)
-        comment = f"  # {param.description}" + ("" if param.live else " [read-only]")
+        comment = f"  # {param.description}" + ("" if param.live or not table.is_node else " [read-only]")
         value = yaml_scalar(param.default)
         if isinstance(param.default, list) and param.default and len(indent) + len(key) + len(value) > 100:
             lines.append(f"{indent}{key}:{comment}")

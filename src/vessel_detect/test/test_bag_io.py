@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_common.errors import DataError
 from vessel_detect import bag_io
+from vessel_fixtures import detect_synthetic as synthetic
 
 
 def test_sec_to_ns_keeps_millisecond_stamps_exact():
@@ -415,7 +415,25 @@ def test_recover_in_place_never_replaces_an_earlier_damaged_file(tmp_path):
     assert (tmp_path / "recording.damaged.2.mcap").is_file()
     with bag_io.BagReader(bag) as reader:
         assert reader.message_count(bag_io.DEFAULT_IMAGE_TOPIC) == 3
+    with pytest.raises(DataError, match="is a file, not a bag folder"):
+        bag_io.recover_bag(bag, tmp_path / "recording.damaged.mcap", overwrite=True)
+    assert (tmp_path / "recording.damaged.mcap").read_bytes() == first
     (bag / "notes.txt").write_text("mine\n")  # not part of the bag: recovering in place would delete it
     with pytest.raises(DataError, match=r"holds other files than its bag \(notes.txt\).*--out NEW"):
         bag_io.recover_bag(bag)
     assert (bag / "notes.txt").read_text() == "mine\n" and not (tmp_path / "recording.damaged.3.mcap").exists()
+
+
+def test_the_camera_source_counts_a_corrupt_chunk_and_plays_the_rest(tmp_path):
+    """What the camera node replays: the damaged chunk is a problem of the source, and the source is damaged."""
+    from vessel_detect.sources import BagSource, Frame
+
+    path = tmp_path / "bag"
+    chunks = _bag_of_chunks(path)
+    _flip_bytes_inside(bag_io.mcap_file_of(path), chunks[2])
+    problems = []
+    source = BagSource(path, aux_topics=[], on_problem=lambda kind, line: problems.append((kind, line)))
+    frames = [item for item in source if isinstance(item, Frame)]
+    assert len(frames) == 30
+    assert [kind for kind, _ in problems] == ["damaged_chunk"] and "chunk 3 of 6" in problems[0][1]
+    assert source.damage == problems[0][1]

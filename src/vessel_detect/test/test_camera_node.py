@@ -8,9 +8,9 @@ import time
 from pathlib import Path
 
 import pytest
-from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_detect import bag_io
+from vessel_fixtures import detect_synthetic as synthetic
 
 pytestmark = pytest.mark.ros
 

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_common.errors import DataError
 from vessel_detect import bag_io, sources
 from vessel_detect.sources import AuxMessage, Frame
+from vessel_fixtures import detect_synthetic as synthetic
 
 
 def frames_of(items):

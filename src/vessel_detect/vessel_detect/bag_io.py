@@ -997,6 +997,8 @@ def recover_bag(path: str | Path, out: str | Path | None = None, *, overwrite: b
                 f"--out {target} holds the damaged bag {path}: replacing it would delete what is being recovered; "
                 "give a new folder, or leave --out out to recover a bag folder in place"
             )
+        if target.is_file():  # e.g. an earlier recovery's BAG.damaged.mcap: a bag is a folder, never put over a file
+            raise DataError(f"--out {target} is a file, not a bag folder: give a new folder")
     salvage = salvage_mcap(path)
     if out is None:
         if not path.is_dir():

@@ -219,6 +219,9 @@ class _CameraPhases:
         if kind == "unreadable":
             self.stats.bad += 1
             self.health.problem("frames_bad", message)
+        elif kind == "damaged_chunk":
+            self.damage = getattr(self.source, "damage", "") or message
+            self.health.problem("source_damaged", message)
         else:
             self.stats.dropped += 1
             self.health.problem("frames_dropped", message)

@@ -14,7 +14,8 @@ Modes (``DetectorConfig.mode``):
 interest would be at the depth its position gives (``vessel_detect.size_prior``).
 
 Then boxes whose bottom lies above the band top (the sky, the far shore) and boxes mostly inside a static
-exclusion mask are dropped. Boxes come back in full-image pixels.
+exclusion mask are dropped. Boxes come back in full-image pixels. How a window becomes the network's input is
+``vessel_detect.network_input``, where the model's class names come from ``vessel_detect.class_names``.
 """
 
 from __future__ import annotations
@@ -28,10 +29,12 @@ import numpy as np
 
 from vessel_common.errors import ModelError, VesselError
 from vessel_detect.appearance_model import rescore_detections
+from vessel_detect.class_names import COCO_CLASSES, find_class_names, read_class_names
 from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
 from vessel_detect.image_codec import ImageError
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
 from vessel_detect.model_store import ModelSpec, how_to_get, resolve_model, sha256_of
+from vessel_detect.network_input import LETTERBOX_PAD_VALUE, Letterbox, letterbox
 from vessel_detect.size_prior import SizePrior
 from vessel_detect.tiling import (
     Window,
@@ -42,26 +45,9 @@ from vessel_detect.tiling import (
     tile_windows,
 )
 
-LETTERBOX_PAD_VALUE = 114
 MODES = ("full", "band", "tiled")
 CHALLENGE_HORIZON_Y = 418.0
 """Screen y of the horizon of the challenge camera (1280x720), for when no calibration is at hand."""
-
-COCO_CLASSES: tuple[str, ...] = (
-    "person", "bicycle", "car", "motorbike", "aeroplane", "bus", "train", "truck", "boat", "traffic light",
-    "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep", "cow",
-    "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
-    "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
-    "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
-    "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "sofa",
-    "pottedplant", "bed", "diningtable", "toilet", "tvmonitor", "laptop", "mouse", "remote", "keyboard",
-    "cell phone", "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors",
-    "teddy bear", "hair drier", "toothbrush",
-)  # fmt: skip
-"""The 80 COCO class names in the order COCO-trained YOLO models output them (``boat`` is 8)."""
-
-CLASS_FILE_NAMES = ("coco_classes.txt", "classes.txt")
-
 
 @dataclass
 class Detections:
@@ -171,29 +157,6 @@ class DetectorConfig:
                 raise VesselError(f"detector configuration: {message}")
 
 
-def read_class_names(path: Path) -> list[str]:
-    """One class name per line (blank lines ignored)."""
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except OSError as error:
-        raise ModelError(f"cannot read class names file {path}: {error.strerror}") from None
-    names = [line.strip() for line in lines if line.strip()]
-    if not names:
-        raise ModelError(f"class names file {path} is empty: write one class name per line, in output order")
-    return names
-
-
-def find_class_names(model_path: Path, explicit: str | Path | None = None) -> list[str] | None:
-    """Class names from ``explicit``, else from a class file next to the model; None when there is none."""
-    if explicit:
-        return read_class_names(Path(explicit))
-    for name in (model_path.with_suffix(".names").name, *CLASS_FILE_NAMES):
-        candidate = model_path.parent / name
-        if candidate.is_file():
-            return read_class_names(candidate)
-    return None
-
-
 class OnnxModel:
     """An onnxruntime session of a YOLO-family model, with its input size and output layout.
 
@@ -245,24 +208,9 @@ class OnnxModel:
                 f"model file {self.path} is not a usable ONNX model ({first_line[:200]}); its sha256 is "
                 f"{_safe_sha(self.path)}{expected}{fix}"
             ) from None
-        inputs = self.session.get_inputs()
-        if len(inputs) != 1:
-            raise ModelError(
-                f"model {self.path} has {len(inputs)} inputs; the detector needs one image input (1, 3, H, W)"
-            )
-        model_input = inputs[0]
+        model_input = _image_input(self.session, self.path)
         self.input_name = model_input.name
         shape = list(model_input.shape)
-        if len(shape) != 4 or (isinstance(shape[1], int) and shape[1] != 3):
-            raise ModelError(
-                f"model {self.path} input '{model_input.name}' has shape {shape}: the detector needs a 3-channel "
-                "image tensor (1, 3, height, width), BGR"
-            )
-        if "float" not in model_input.type:
-            raise ModelError(
-                f"model {self.path} input '{model_input.name}' is {model_input.type}: the detector feeds float32 "
-                "pixels 0-255"
-            )
         fixed = [isinstance(side, int) and side > 0 for side in shape[2:]]
         self.free_input_size = not any(fixed)
         nominal_wh = _nominal_input_size(self.session, self.path) or (int(input_size[0]), int(input_size[1]))
@@ -270,29 +218,40 @@ class OnnxModel:
         width = shape[3] if fixed[1] else nominal_wh[0]
         self.input_hw = (int(height), int(width))
         self.output_name = self.session.get_outputs()[0].name
-        # One dry run: checks the model runs at all and gives the real output shape for dynamic models.
+        self.output_shape = self._probe_output_shape()
+        names = list(class_names) if class_names else find_class_names(self.path)
+        self.layout = self._output_layout(layout, names, strides)
+        self.num_classes = self._class_count()
+        self.class_names = self._checked_class_names(names)
+
+    def _probe_output_shape(self) -> tuple[int, ...]:
+        """One dry run: checks the model runs at all and gives the real output shape for dynamic models."""
         try:
             probe = self.session.run(
                 [self.output_name],
                 {self.input_name: np.full((1, 3, *self.input_hw), LETTERBOX_PAD_VALUE, np.float32)},
             )[0]
         except Exception as error:
+            height, width = self.input_hw
             raise ModelError(f"model {self.path} fails on a {width}x{height} image: {str(error)[:300]}") from None
-        self.output_shape = tuple(probe.shape)
-        names = list(class_names) if class_names else find_class_names(self.path)
+        return tuple(probe.shape)
+
+    def _output_layout(self, layout: str, names: list[str] | None, strides) -> OutputLayout:
+        """The given layout, or for ``auto`` the one the output shape implies (with the class count, if known)."""
         if layout == "auto":
             try:
-                self.layout = detect_layout(self.output_shape, self.input_hw, None, strides)
+                return detect_layout(self.output_shape, self.input_hw, None, strides)
             except ModelError:
                 if not names:
                     raise
-                self.layout = detect_layout(self.output_shape, self.input_hw, len(names), strides)
-        else:
-            try:
-                self.layout = OutputLayout(layout)
-            except ValueError:
-                raise ModelError(f"layout '{layout}' unknown: use auto, yolox, yolov5 or yolov8") from None
-        self.num_classes = self._class_count()
+                return detect_layout(self.output_shape, self.input_hw, len(names), strides)
+        try:
+            return OutputLayout(layout)
+        except ValueError:
+            raise ModelError(f"layout '{layout}' unknown: use auto, yolox, yolov5 or yolov8") from None
+
+    def _checked_class_names(self, names: list[str] | None) -> list[str]:
+        """One name per output class: the ones found, else COCO's for an 80-class model."""
         if names is None:
             if self.num_classes == len(COCO_CLASSES):
                 names = list(COCO_CLASSES)
@@ -305,7 +264,7 @@ class OnnxModel:
             raise ModelError(
                 f"model {self.path} outputs {self.num_classes} classes but {len(names)} class names were given"
             )
-        self.class_names = names
+        return names
 
     def _class_count(self) -> int:
         dims = self.output_shape[1:] if len(self.output_shape) == 3 else self.output_shape
@@ -316,6 +275,28 @@ class OnnxModel:
     def run(self, tensor: np.ndarray) -> np.ndarray:
         """Run the network on one ``(1, 3, H, W)`` float32 tensor; return its first output."""
         return self.session.run([self.output_name], {self.input_name: tensor})[0]
+
+
+def _image_input(session, path: Path):
+    """The model's one input, checked to be a float image tensor (1, 3, H, W)."""
+    inputs = session.get_inputs()
+    if len(inputs) != 1:
+        raise ModelError(
+            f"model {path} has {len(inputs)} inputs; the detector needs one image input (1, 3, H, W)"
+        )
+    model_input = inputs[0]
+    shape = list(model_input.shape)
+    if len(shape) != 4 or (isinstance(shape[1], int) and shape[1] != 3):
+        raise ModelError(
+            f"model {path} input '{model_input.name}' has shape {shape}: the detector needs a 3-channel "
+            "image tensor (1, 3, height, width), BGR"
+        )
+    if "float" not in model_input.type:
+        raise ModelError(
+            f"model {path} input '{model_input.name}' is {model_input.type}: the detector feeds float32 "
+            "pixels 0-255"
+        )
+    return model_input
 
 
 INPUT_SIZE_METADATA_KEY = "input_size"
@@ -362,51 +343,6 @@ def load_model(
     return OnnxModel(
         path, intra_op_threads, layout, names, expected_sha256=spec.expected_sha256, how_to_get=how_to_get(spec)
     )
-
-
-@dataclass(frozen=True)
-class Letterbox:
-    """How a source crop was placed into the network input: resized by ``scale``, top-left, padded."""
-
-    scale: float
-    offset_x: float = 0.0
-    offset_y: float = 0.0
-
-    def to_source(self, boxes_xyxy: np.ndarray) -> np.ndarray:
-        """Network-input pixels -> source image pixels."""
-        boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4) / self.scale
-        return boxes + np.array([self.offset_x, self.offset_y, self.offset_x, self.offset_y])
-
-    def to_network(self, boxes_xyxy: np.ndarray) -> np.ndarray:
-        """Source image pixels -> network-input pixels."""
-        boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
-        return (boxes - np.array([self.offset_x, self.offset_y, self.offset_x, self.offset_y])) * self.scale
-
-
-def letterbox(
-    bgr: np.ndarray, input_hw: tuple[int, int], scale: float | None = None, pad_value: int = LETTERBOX_PAD_VALUE
-) -> tuple[np.ndarray, float]:
-    """Resize keeping the aspect ratio, place at the top-left of an ``input_hw`` canvas of ``pad_value``.
-
-    Returns the ``(1, 3, H, W)`` float32 tensor (BGR, 0-255, no normalisation, as YOLOX expects) and the
-    scale used. ``scale`` (network px per source px) defaults to the largest that fits; the resized image is
-    cropped to the canvas if a given scale makes it larger.
-    """
-    in_h, in_w = input_hw
-    src_h, src_w = bgr.shape[:2]
-    if scale is None:
-        scale = min(in_h / src_h, in_w / src_w)
-    new_w = max(1, min(in_w, int(round(src_w * scale))))
-    new_h = max(1, min(in_h, int(round(src_h * scale))))
-    if (new_w, new_h) == (src_w, src_h):
-        resized = bgr
-    else:
-        full_w, full_h = max(1, int(round(src_w * scale))), max(1, int(round(src_h * scale)))
-        resized = cv2.resize(bgr, (full_w, full_h), interpolation=cv2.INTER_LINEAR)[:new_h, :new_w]
-    canvas = np.full((in_h, in_w, 3), pad_value, dtype=np.uint8)
-    canvas[:new_h, :new_w] = resized
-    tensor = np.ascontiguousarray(canvas.transpose(2, 0, 1)[None], dtype=np.float32)
-    return tensor, float(scale)
 
 
 @dataclass(frozen=True)

@@ -44,8 +44,8 @@ MODEL_PARAMS: tuple[Param, ...] = (
               "then downloads model_url."),
     Param("model_url", "", "URL to download the model from into the cache ('' with no model_path: the "
               "default YOLOX-Nano's URL)."),
-    Param("model_sha256", "", "Expected sha256 of the model file ('' : the default model's when neither "
-              "model_path nor model_url is set; otherwise not checked)."),
+    Param("model_sha256", "", "sha256 of the model file: required with model_url (a download is checked "
+              "before it is used); '' with neither model_path nor model_url: the default model's."),
     Param("model_cache_dir", "", "Download cache ('' : $VESSEL_MODEL_CACHE or "
               "~/.cache/vessel_tracking/models)."),
     Param("allow_download", True, "Download model_url when the model is not found locally."),

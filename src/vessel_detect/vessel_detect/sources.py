@@ -167,6 +167,7 @@ class SourceStats:
     aux: int = 0  # other-topic messages yielded
     out_of_order: int = 0  # frames skipped: stamp not after the previous frame's
     unreadable: int = 0  # frames skipped: no image could be read (bad file, device read failure)
+    damaged_chunk: int = 0  # chunks of a bag whose checksum failed (their frames are lost)
     loops: int = 0  # completed passes
 
 
@@ -310,7 +311,7 @@ class BagSource(ImageSource):
         self.description = f"bag {self.path}"
         self.damage = ""
         try:
-            self.reader = bag_io.BagReader(self.path)
+            self.reader = bag_io.BagReader(self.path, on_damage=self._damaged_chunk)
         except DataError as error:
             if "damaged" not in str(error) and "truncated" not in str(error):
                 raise
@@ -327,6 +328,11 @@ class BagSource(ImageSource):
         self.aux_topics = [t for t in wanted if t in self.reader.topics and t != image_topic]
         self.missing_aux_topics = [t for t in wanted if t not in self.reader.topics]
         self._first_ns: int | None = None
+
+    def _damaged_chunk(self, line: str) -> None:
+        """A chunk whose checksum fails: its frames are lost, the rest plays, and the replay ends non-zero."""
+        self.damage = f"{self.damage}; {line}" if self.damage else line
+        self.problem("damaged_chunk", line)
 
     def _stamp_of(self, message: bag_io.BagMessage) -> int | None:
         try:

@@ -165,6 +165,27 @@ def join_cut_pieces(
     cut_rows = np.flatnonzero(dets.cut.any(axis=1))
     if cut_rows.size < 2:
         return dets
+    groups = _cut_piece_groups(dets, windows, cut_rows, join_iou)
+    if all(len(members) == 1 for members in groups.values()):
+        return dets
+    pieces = {int(i) for i in cut_rows}
+    rows = [(dets.boxes_xyxy[i], dets.scores[i], dets.class_ids[i], dets.window_index[i], dets.cut[i],
+             dets.target_scores[i]) for i in range(len(dets)) if i not in pieces]
+    rows += [_joined_pieces(dets, members) for members in groups.values()]
+    boxes, scores, class_ids, window_index, cut, targets = zip(*rows, strict=True)
+    return WindowDetections(
+        np.asarray(boxes, dtype=np.float64).reshape(-1, 4),
+        np.asarray(scores, dtype=np.float64),
+        np.asarray(class_ids, dtype=np.int64),
+        np.asarray(window_index, dtype=np.int64),
+        np.asarray(cut, dtype=bool).reshape(-1, 4),
+        np.asarray(targets, dtype=np.float64),
+    )
+
+
+def _cut_piece_groups(dets: WindowDetections, windows: list[Window], cut_rows: np.ndarray,
+                      join_iou: float) -> dict[int, list[int]]:
+    """The cut boxes ``cut_rows`` grouped by object (union-find over the pairs that are pieces of one object)."""
     parent = {int(i): int(i) for i in cut_rows}
 
     def root(i: int) -> int:
@@ -175,53 +196,40 @@ def join_cut_pieces(
 
     for a_pos, i in enumerate(cut_rows):
         for j in cut_rows[a_pos + 1 :]:
-            if dets.window_index[i] == dets.window_index[j] or dets.class_ids[i] != dets.class_ids[j]:
-                continue
-            wi, wj = windows[dets.window_index[i]].xyxy, windows[dets.window_index[j]].xyxy
-            shared = np.concatenate([np.maximum(wi[:2], wj[:2]), np.minimum(wi[2:], wj[2:])])
-            if np.any(shared[2:] <= shared[:2]):
-                continue
-            if _shared_area_iou(dets.boxes_xyxy[i], dets.boxes_xyxy[j], shared) >= join_iou:
+            if _pieces_of_one_object(dets, windows, i, j, join_iou):
                 parent[root(int(i))] = root(int(j))
     groups: dict[int, list[int]] = {}
     for i in cut_rows:
         groups.setdefault(root(int(i)), []).append(int(i))
-    if all(len(members) == 1 for members in groups.values()):
-        return dets
-    keep_rows = [i for i in range(len(dets)) if i not in parent]
-    boxes, scores, class_ids, window_index, cut, targets = [], [], [], [], [], []
-    for i in keep_rows:
-        targets.append(dets.target_scores[i])
-        boxes.append(dets.boxes_xyxy[i])
-        scores.append(dets.scores[i])
-        class_ids.append(dets.class_ids[i])
-        window_index.append(dets.window_index[i])
-        cut.append(dets.cut[i])
-    for members in groups.values():
-        member_boxes = dets.boxes_xyxy[members]
-        union = np.concatenate([member_boxes[:, :2].min(axis=0), member_boxes[:, 2:].max(axis=0)])
-        reach = [
-            int(np.argmin(member_boxes[:, 0])),
-            int(np.argmin(member_boxes[:, 1])),
-            int(np.argmax(member_boxes[:, 2])),
-            int(np.argmax(member_boxes[:, 3])),
-        ]
-        best = members[int(np.argmax(dets.scores[members]))]
-        boxes.append(union)
-        member_targets = dets.target_scores[members]
-        targets.append(np.nanmax(member_targets) if np.isfinite(member_targets).any() else np.nan)
-        scores.append(dets.scores[best])
-        class_ids.append(dets.class_ids[best])
-        window_index.append(dets.window_index[best])
-        cut.append(np.array([dets.cut[members[reach[side]], side] for side in range(4)]))
-    return WindowDetections(
-        np.asarray(boxes, dtype=np.float64).reshape(-1, 4),
-        np.asarray(scores, dtype=np.float64),
-        np.asarray(class_ids, dtype=np.int64),
-        np.asarray(window_index, dtype=np.int64),
-        np.asarray(cut, dtype=bool).reshape(-1, 4),
-        np.asarray(targets, dtype=np.float64),
-    )
+    return groups
+
+
+def _pieces_of_one_object(dets: WindowDetections, windows: list[Window], i: int, j: int, join_iou: float) -> bool:
+    """Whether cut boxes ``i`` and ``j`` (same class, other windows) overlap enough where their windows meet."""
+    if dets.window_index[i] == dets.window_index[j] or dets.class_ids[i] != dets.class_ids[j]:
+        return False
+    wi, wj = windows[dets.window_index[i]].xyxy, windows[dets.window_index[j]].xyxy
+    shared = np.concatenate([np.maximum(wi[:2], wj[:2]), np.minimum(wi[2:], wj[2:])])
+    if np.any(shared[2:] <= shared[:2]):
+        return False
+    return _shared_area_iou(dets.boxes_xyxy[i], dets.boxes_xyxy[j], shared) >= join_iou
+
+
+def _joined_pieces(dets: WindowDetections, members: list[int]) -> tuple:
+    """One detection for the pieces ``members``: (box, score, class id, window index, cut flags, target score)."""
+    member_boxes = dets.boxes_xyxy[members]
+    union = np.concatenate([member_boxes[:, :2].min(axis=0), member_boxes[:, 2:].max(axis=0)])
+    reach = [
+        int(np.argmin(member_boxes[:, 0])),
+        int(np.argmin(member_boxes[:, 1])),
+        int(np.argmax(member_boxes[:, 2])),
+        int(np.argmax(member_boxes[:, 3])),
+    ]
+    best = members[int(np.argmax(dets.scores[members]))]
+    member_targets = dets.target_scores[members]
+    target = np.nanmax(member_targets) if np.isfinite(member_targets).any() else np.nan
+    cut = np.array([dets.cut[members[reach[side]], side] for side in range(4)])
+    return union, dets.scores[best], dets.class_ids[best], dets.window_index[best], cut, target
 
 
 def merge_windows(

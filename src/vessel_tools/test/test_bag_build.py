@@ -5,10 +5,10 @@ import math
 
 import numpy as np
 import pytest
-from vessel_fixtures import detect_synthetic as synthetic
 
 from vessel_common.errors import DataError
 from vessel_detect import bag_io
+from vessel_fixtures import detect_synthetic as synthetic
 from vessel_tools.detect import bag_build
 
 

@@ -9,8 +9,8 @@ import sys
 from types import SimpleNamespace
 
 import pytest
-from vessel_bringup.graph_watcher import ArrivalLog
 
+from vessel_bringup.graph_watcher import ArrivalLog
 from vessel_tools import bench_live
 
 

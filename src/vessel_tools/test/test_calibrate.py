@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 
 from vessel_calib import geodesy
 from vessel_calib.params import load_camera_yaml
 from vessel_common.errors import CalibrationError
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 from vessel_tools import calibrate as calibrate_tool
 from vessel_tools.calib.calibration import evaluate
 from vessel_tools.calibrate_options import ros_params_to_cli

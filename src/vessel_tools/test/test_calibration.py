@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 
 from vessel_calib import geodesy
 from vessel_calib.camera_model import CameraModel
 from vessel_common.errors import CalibrationError
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, synthetic_pairs
 from vessel_tools.calib.calibration import PAPER_OPTIONS, FitOptions, calibrate, evaluate, study_draws
 from vessel_tools.calib.homography import normalized_dlt, scan_k1
 

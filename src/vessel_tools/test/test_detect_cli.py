@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from vessel_fixtures.onnx_synthetic import write_constant_output_model
 
 from vessel_calib import geodesy
 from vessel_calib.camera_model import CameraModel
 from vessel_detect.decoders import grid_point_count
 from vessel_detect.detections_csv import CSV_COLUMNS
+from vessel_fixtures.onnx_synthetic import write_constant_output_model
 from vessel_tools.detect import detect_cli
 
 CAMERA_LAT, CAMERA_LON = 32.70297, -117.234631

@@ -7,10 +7,10 @@ import re
 
 import numpy as np
 import pytest
-from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
 
 from vessel_calib import geodesy
 from vessel_common.errors import CalibrationError
+from vessel_fixtures.calib_synthetic import CAMERA_LAT, CAMERA_LON, pinhole_camera, search_frames
 from vessel_tools.calib.box_anchor import measure_box_anchor
 from vessel_tools.calib.gps_association import FrameBoxes, SearchOptions, associate_and_calibrate
 
@@ -136,9 +136,8 @@ def _truth():
 
 
 def test_calibrate_a_folder_without_labels(tmp_path, capsys):
-    from vessel_fixtures.calib_synthetic import write_search_folder
-
     from vessel_calib.params import load_camera_yaml
+    from vessel_fixtures.calib_synthetic import write_search_folder
 
     detections = write_search_folder(tmp_path / "data", search_frames(_truth(), seed=3))
     out = tmp_path / "cal" / "camera.yaml"
@@ -154,9 +153,8 @@ def test_calibrate_a_folder_without_labels(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_folder_without_labels_gets_the_graph_detector_s_box_anchor(tmp_path, capsys):
     """The search reads its detector's boxes at 0.65; the graph's detector sits the GPS 0.55 down its boxes."""
-    from vessel_fixtures.calib_synthetic import write_search_folder
-
     from vessel_calib.params import load_camera_yaml
+    from vessel_fixtures.calib_synthetic import write_search_folder
 
     frames = search_frames(_truth(), seed=3)
     detections = write_search_folder(tmp_path / "data", frames)

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from vessel_fixtures.presets import paper_simulation_settings
 
 from vessel_common.errors import DataError
+from vessel_fixtures.presets import paper_simulation_settings
 from vessel_tools.track import pipeline as pl
 from vessel_tools.track.simulation import (
     vessel_of_interest_scenario,

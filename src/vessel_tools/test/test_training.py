@@ -326,7 +326,8 @@ def _smoke_settings():
 
 
 def test_smoke_training_exports_an_onnx_model_that_matches_pytorch(tiny_onnx, tmp_path):
-    from vessel_detect.detector import OnnxModel, letterbox
+    from vessel_detect.detector import OnnxModel
+    from vessel_detect.network_input import letterbox
     from vessel_tools.detect.training.trainer import band_detector, save_model, train
 
     images, labels = _synthetic_set()

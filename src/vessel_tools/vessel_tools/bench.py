@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from vessel_bringup.graph import default_calibration_file, default_params_file, repo_root
 
+from vessel_bringup.graph import default_calibration_file, default_params_file, repo_root
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.camera_parameters import DEFAULT_CAMERA_PARAMETERS
 from vessel_common.command_line import command_line_tool

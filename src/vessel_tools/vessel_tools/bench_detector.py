@@ -216,8 +216,23 @@ def run(args: argparse.Namespace) -> dict:
     if args.baseline_params:
         baseline_files = [p for p in (args.params, args.calib) if p] + [args.baseline_params]
         result.update(compare_with_baseline(values, camera, model, baseline_files, jpegs, args.rounds))
+    _time_modes(args.modes, values, camera, model, jpegs, result)
+    if args.no_node:
+        return result
+    reason = _ros_available()
+    if reason:
+        print(f"  node: skipped: {reason}")
+        result["node"] = {"skipped": reason}
+        return result
+    detector = build_detector(values, camera, model)
+    result.update(_node_against_core(detector, jpegs, params_files, args, values["mode"]))
+    return result
+
+
+def _time_modes(modes, values, camera, model, jpegs: list[bytes], result: dict) -> None:
+    """The core's ms per frame in each of ``modes``, and of the JPEG decode, into ``result``; printed."""
     decode_all: list[float] = []
-    for mode in args.modes:
+    for mode in modes:
         detector = build_detector(values_in_mode(values, mode), camera, model)
         decode_ms, detect_ms = time_core(detector, jpegs)
         decode_all += decode_ms
@@ -228,21 +243,19 @@ def run(args: argparse.Namespace) -> dict:
               f"({figures['network_runs_per_frame']} network runs per frame)")
     result["jpeg_decode"] = _percentiles(decode_all)
     print(f"  JPEG decode: {result['jpeg_decode']['median_ms']:.1f} ms median")
-    if args.no_node:
-        return result
-    reason = _ros_available()
-    if reason:
-        print(f"  node: skipped: {reason}")
-        result["node"] = {"skipped": reason}
-        return result
-    detector = build_detector(values, camera, model)
+
+
+def _node_against_core(detector, jpegs: list[bytes], params_files: list, args, mode: str) -> dict:
+    """Frames/s of the detector node between processes against the core alone, in interleaved rounds; printed.
+
+    Interleaved so that a change of the machine's load hits both sides alike.
+    """
     driver = NodeDriver(jpegs, params_files, args.timeout_s)
     per_round = max(1, args.node_frames // args.rounds)
     core_frames = core_seconds = node_frames = node_seconds = 0.0
     rounds = []
     try:
         for index in range(args.rounds):
-            # Interleaved so that a change of the machine's load hits both sides alike.
             chunk = [jpegs[(index * per_round + k) % len(jpegs)] for k in range(per_round)]
             decode_ms, detect_ms = time_core(detector, chunk)
             seconds = (sum(decode_ms) + sum(detect_ms)) / 1000.0
@@ -257,16 +270,14 @@ def run(args: argparse.Namespace) -> dict:
     core_fps = core_frames / core_seconds
     node_fps = node_frames / node_seconds
     ratio = node_fps / core_fps
-    print(f"  {values['mode']} mode, {args.rounds} interleaved rounds of {per_round} frames:")
+    print(f"  {mode} mode, {args.rounds} interleaved rounds of {per_round} frames:")
     print(f"  core alone (decode + detect): {core_fps:.2f} frames/s")
     print(f"  node between processes:       {node_fps:.2f} frames/s ({int(node_frames)}/{int(args.rounds * per_round)}"
           " frames answered)")
     print(f"  node / core: {ratio:.2f} (per round: "
           + ", ".join(f"{r['node_fps'] / r['core_fps']:.2f}" for r in rounds) + ")")
-    result["core_fps"] = core_fps
-    result["node"] = {"fps": node_fps, "frames": int(node_frames), "rounds": rounds}
-    result["node_over_core"] = ratio
-    return result
+    return {"core_fps": core_fps, "node": {"fps": node_fps, "frames": int(node_frames), "rounds": rounds},
+            "node_over_core": ratio}
 
 
 def values_in_mode(values: Mapping[str, Any], mode: str) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from vessel_bringup.graph import GRAPH_NODES, GraphRunner
 from vessel_bringup.graph_watcher import (
     CHAIN,
@@ -25,7 +26,6 @@ from vessel_bringup.graph_watcher import (
     ArrivalLog,
     GraphWatcher,
 )
-
 from vessel_common.errors import VesselError
 from vessel_tools.bench_report import log, summary_ms
 from vessel_tools.proc_monitor import NodeUsage, ProcMonitor, node_pid

@@ -26,9 +26,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
 from vessel_bringup.graph import default_calibration_file, default_params_file
 from vessel_bringup.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
-
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir

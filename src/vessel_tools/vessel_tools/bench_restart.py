@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from vessel_bringup.graph_watcher import GraphWatcher
 
+from vessel_bringup.graph_watcher import GraphWatcher
 from vessel_calib import geodesy
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError

@@ -12,6 +12,7 @@ from dataclasses import replace
 
 from vessel_calib.params import read_params_yaml
 from vessel_common.errors import CalibrationError
+from vessel_common.parameter_table import Param, ParameterTable
 from vessel_tools.calib.calibration import DEFAULT_BOX_ANCHOR, LOSSES, PAPER_OPTIONS, FitOptions
 from vessel_tools.calib.gps_association import SearchOptions
 
@@ -247,3 +248,29 @@ def search_options(args) -> SearchOptions:
     """SearchOptions of the label-free search from the command line."""
     return SearchOptions(box_anchor=args.box_anchor, seed=args.seed, hypotheses=args.hypotheses,
                          min_associations=args.min_associations, max_nadir_m=args.max_camera_offset).checked()
+
+
+# --------------------------------------------------------------------------- its part file
+PART_OPTIONS = ("data", "videos", "label_passes", "pairs_csv", "gps", "max_gap_s", "image_size", "method", "loss",
+                "robust_scale", "far_weight", "out", "picture", "evaluate_on")
+"""The options ``config/parts/calibrate.yaml`` lists as ROS parameters (every option is one: ``-p name:=value``)."""
+
+
+def calibrate_parameters() -> ParameterTable:
+    """calibrate's main options as the rows of a parameter table, written from its argparse options.
+
+    The tool is not a node, but takes ``--ros-args -p`` and a ``calibrate:`` block of a parameter file; its part
+    file comes from the same option definitions as ``--help``, so the two cannot drift.
+    """
+    actions = {action.dest: action for action in build_parser()._actions}
+    rows = []
+    for name in PART_OPTIONS:
+        action = actions[name]
+        default = action.default if action.default is not None else ""
+        if name == "videos" and default == "":
+            default = DEFAULT_TRAIN_VIDEOS
+        rows.append(Param(name, default, action.help.replace("%%", "%"), choices=tuple(action.choices or ())))
+    return ParameterTable(NODE_NAME, "Offline calibration tool (vessel_tools calibrate): fits H and K1 from "
+                          "(screen, GPS) pairs and writes the `camera:` block every node loads.", tuple(rows),
+                          notes=("It runs once, not in the graph: its options, overridden by -p name:=value or the "
+                                 "--options of `calibrate --help`.", "Empty strings mean \"not set\"."), is_node=False)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
+
 from vessel_bringup.graph import (
     GRAPH_NODES,
     RECORDER,
@@ -32,7 +33,6 @@ from vessel_bringup.graph import (
     wait_until_connected,
 )
 from vessel_bringup.graph_watcher import GraphWatcher
-
 from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
@@ -231,66 +231,12 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
     started = time.monotonic()
     labels = label_csv is not None
     try:
-        runner.start(RECORDER, {"output": str(recording),
-                                "topics": [f"{topic}:{msgtype}" for topic, msgtype in OUTPUT_TOPICS.items()]})
-        nodes = {node.name: node for node in GRAPH_NODES}
-        runner.start(nodes["gps_publisher"])
-        # Hand-drawn boxes are read as the calibration read them (FuserSettings.for_hand_boxes).
-        fuser_values = {"fusion": dict(HAND_BOX_FUSION)} if labels else {}
-        fuser_values.update(fuser_overrides or {})
-        runner.start(nodes["fuser"], fuser_values or None)
-        runner.start(nodes["tracker"])
-        if saved_csv is not None:
-            runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",
-                                           "image_qos": "reliable"})
-        elif not labels:
-            runner.start(nodes["detector"])
+        _start_consumers(runner, labels, saved_csv, recording, fuser_overrides)
         wait_until_connected(runner, watcher, 60.0, f"see the logs in {log_dir}", with_camera=not labels,
                              with_detector=not labels)
-        if labels:  # the source, self-paced: it waits for the tracker and the recorder before sending anything
-            runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
-                                           "wait_for_subscribers": 2})
-            source = "detector"
-        else:
-            source = "camera"
-            camera_parameters: dict[str, object] = {"source": str(bag), "rate": 0.0, "loop": False,
-                                                    "exit_at_end": True}
-            if saved_csv is not None:  # the replay answers at once: pace on the fuser, send images reliably
-                camera_parameters.update(image_qos="reliable", ack_topic="/vessel/tracks",
-                                         ack_type="vessel_msgs/msg/VesselTrackArray")
-            if args.max_frames:
-                camera_parameters["max_frames"] = args.max_frames
-            runner.start(nodes["camera"], camera_parameters)
+        source = _start_source(runner, bag, args, label_csv, saved_csv)
         expected = min(frames_expected, args.max_frames) if args.max_frames else frames_expected
-        last_progress = time.monotonic()
-        last_count = -1
-        failed_nodes: tuple[str, ...] = ()
-        while watcher.tracks_received < expected:
-            watcher.spin(0.2)
-            if watcher.tracks_received != last_count:
-                last_count = watcher.tracks_received
-                last_progress = time.monotonic()
-                if sys.stderr.isatty():
-                    print(f"\r[demo] video {video}: {last_count}/{expected} frames through the graph",
-                          end="", file=sys.stderr, flush=True)
-                elif last_count % 10 == 0:  # a log file gets a line every ten frames
-                    log(f"video {video}: {last_count}/{expected} frames through the graph")
-            failed = runner.failed()
-            if failed:
-                print(file=sys.stderr)
-                log(f"video {video}: node(s) {failed} failed after {watcher.tracks_received}/{expected} frames; "
-                    f"what was recorded is kept and scored. Its last lines:\n{runner.log_tail(failed[0])}")
-                failed_nodes = tuple(failed)
-                break
-            idle = time.monotonic() - last_progress
-            source_done = runner.running[source].process.poll() is not None
-            if (source_done and idle > 5.0) or idle > args.frame_timeout:
-                print(file=sys.stderr)
-                log(f"video {video}: stopping with {watcher.tracks_received}/{expected} frames through the graph "
-                    f"({'the source finished' if source_done else 'no progress'}; see {log_dir})")
-                break
-        if sys.stderr.isatty():
-            print(file=sys.stderr)
+        failed_nodes = _wait_for_frames(runner, watcher, video, expected, source, args.frame_timeout, log_dir)
         watcher.spin(1.0)  # let the GPS publisher and the recorder take the last messages
         frames_out = watcher.tracks_received
     finally:
@@ -298,6 +244,77 @@ def run_video(video: int, bag: Path, recording: Path, params: list[Path], args, 
         watcher.close()
     return VideoRun(video, frames_expected, frames_out, time.monotonic() - started, recording, statuses,
                     failed_nodes)
+
+
+def _start_consumers(runner: GraphRunner, labels: bool, saved_csv: Path | None, recording: Path,
+                     fuser_overrides: dict | None) -> None:
+    """Recorder, GPS publisher, fuser, tracker and the detector (none for hand labels), consumers first."""
+    runner.start(RECORDER, {"output": str(recording),
+                            "topics": [f"{topic}:{msgtype}" for topic, msgtype in OUTPUT_TOPICS.items()]})
+    nodes = {node.name: node for node in GRAPH_NODES}
+    runner.start(nodes["gps_publisher"])
+    # Hand-drawn boxes are read as the calibration read them (FuserSettings.for_hand_boxes).
+    fuser_values = {"fusion": dict(HAND_BOX_FUSION)} if labels else {}
+    fuser_values.update(fuser_overrides or {})
+    runner.start(nodes["fuser"], fuser_values or None)
+    runner.start(nodes["tracker"])
+    if saved_csv is not None:
+        runner.start(REPLAY_DETECTOR, {"detections_csv": str(saved_csv), "pace": "images",
+                                       "image_qos": "reliable"})
+    elif not labels:
+        runner.start(nodes["detector"])
+
+
+def _start_source(runner: GraphRunner, bag: Path, args, label_csv: Path | None, saved_csv: Path | None) -> str:
+    """Start what feeds the graph: the camera replaying the bag, or the replay detector of hand labels; its name."""
+    if label_csv is not None:  # self-paced: it waits for the tracker and the recorder before sending anything
+        runner.start(REPLAY_DETECTOR, {"detections_csv": str(label_csv), "pace": "self",
+                                       "wait_for_subscribers": 2})
+        return "detector"
+    camera_parameters: dict[str, object] = {"source": str(bag), "rate": 0.0, "loop": False, "exit_at_end": True}
+    if saved_csv is not None:  # the replay answers at once: pace on the fuser, send images reliably
+        camera_parameters.update(image_qos="reliable", ack_topic="/vessel/tracks",
+                                 ack_type="vessel_msgs/msg/VesselTrackArray")
+    if args.max_frames:
+        camera_parameters["max_frames"] = args.max_frames
+    nodes = {node.name: node for node in GRAPH_NODES}
+    runner.start(nodes["camera"], camera_parameters)
+    return "camera"
+
+
+def _wait_for_frames(runner: GraphRunner, watcher: GraphWatcher, video: int, expected: int, source: str,
+                     frame_timeout: float, log_dir: Path) -> tuple[str, ...]:
+    """Spin until ``expected`` frames came out of the fuser, a node failed or progress stopped; the failed nodes."""
+    last_progress = time.monotonic()
+    last_count = -1
+    failed_nodes: tuple[str, ...] = ()
+    while watcher.tracks_received < expected:
+        watcher.spin(0.2)
+        if watcher.tracks_received != last_count:
+            last_count = watcher.tracks_received
+            last_progress = time.monotonic()
+            if sys.stderr.isatty():
+                print(f"\r[demo] video {video}: {last_count}/{expected} frames through the graph",
+                      end="", file=sys.stderr, flush=True)
+            elif last_count % 10 == 0:  # a log file gets a line every ten frames
+                log(f"video {video}: {last_count}/{expected} frames through the graph")
+        failed = runner.failed()
+        if failed:
+            print(file=sys.stderr)
+            log(f"video {video}: node(s) {failed} failed after {watcher.tracks_received}/{expected} frames; "
+                f"what was recorded is kept and scored. Its last lines:\n{runner.log_tail(failed[0])}")
+            failed_nodes = tuple(failed)
+            break
+        idle = time.monotonic() - last_progress
+        source_done = runner.running[source].process.poll() is not None
+        if (source_done and idle > 5.0) or idle > frame_timeout:
+            print(file=sys.stderr)
+            log(f"video {video}: stopping with {watcher.tracks_received}/{expected} frames through the graph "
+                f"({'the source finished' if source_done else 'no progress'}; see {log_dir})")
+            break
+    if sys.stderr.isatty():
+        print(file=sys.stderr)
+    return failed_nodes
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -404,7 +421,8 @@ def export_offline_predictions(runs: list[VideoRun], out: Path, calibration: Pat
     (``FuserSettings.for_hand_boxes``). Each box's confidence is what the tracker node took from the same message
     (``detections_to_arrays`` with the file's ``classes`` and ``confidence_class``).
     """
-    from vessel_tools.track.pipeline import PipelineConfig, run_video, write_predictions_csv
+    from vessel_tools.track.pipeline import PipelineConfig, run_video
+    from vessel_tools.track.pipeline_results import write_predictions_csv
 
     camera = load_camera_yaml(calibration)
     classes, confidence_class = load_detection_inputs(params_file)
@@ -454,17 +472,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     is_shared = shared is not None and Path(data).resolve() == shared.resolve()
     bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)
     bags = prepare_bags(dataset, videos, bag_root)
-    if args.detections == "labels":
-        frames_per_video = {v: write_label_detections(dataset, v, out / "labels" / f"video_{v}.csv")
-                            for v in videos}
-        unlabelled = [v for v, count in frames_per_video.items() if count == 0]
-        if unlabelled:
-            raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
-    else:
-        frames_per_video = {v: len(dataset.frames([v])) for v in videos}
+    frames_per_video = _frames_per_video(args, dataset, videos, out, data)
     saved_csvs = {v: out / "saved_detections" / f"video_{v}.csv" for v in videos} if saved is not None else {}
     for v, path in saved_csvs.items():
         write_saved_detections(saved, v, path)
+    runs = _run_videos(args, videos, bags, params, out, frames_per_video, saved_csvs, fuser_overrides)
+    runs = [run for run in runs if readable_recording(run, log)]
+    if not runs:
+        raise VesselError("no video left a readable recording: see the logs in " + str(out / "logs"))
+    predictions, tracks = export_recordings(runs, out)
+
+    offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
+    summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
+                           "labels" if args.detections == "labels" else "frames")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    log(f"outputs in {out}: predictions.csv, predictions_offline.csv, fixes.csv, tracks.csv, summary.json, "
+        "plots, recording/")
+    return _status(runs, videos)
+
+
+def _frames_per_video(args, dataset: Dataset, videos: list[int], out: Path, data) -> dict[int, int]:
+    """Frames each video sends through the graph: its labelled frames (written for the replay), or its images."""
+    if args.detections != "labels":
+        return {v: len(dataset.frames([v])) for v in videos}
+    frames_per_video = {v: write_label_detections(dataset, v, out / "labels" / f"video_{v}.csv") for v in videos}
+    unlabelled = [v for v, count in frames_per_video.items() if count == 0]
+    if unlabelled:
+        raise VesselError(f"--detections labels: {data} has no hand labels for video(s) {unlabelled}")
+    return frames_per_video
+
+
+def _run_videos(args, videos: list[int], bags: dict[int, Path], params: list[Path], out: Path,
+                frames_per_video: dict[int, int], saved_csvs: dict[int, Path], fuser_overrides: dict) -> list[VideoRun]:
+    """Each video through the graph in turn, recorded to ``out/recording/video_N`` (replacing an older one)."""
     runs = []
     for video in videos:
         label_csv = out / "labels" / f"video_{video}.csv" if args.detections == "labels" else None
@@ -480,17 +520,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         log(f"video {video}: {run.frames_out}/{run.frames_expected} frames in {run.seconds:.1f} s "
             f"({run.frames_out / max(run.seconds, 1e-9):.2f} frames/s incl. start-up)")
         runs.append(run)
-    runs = [run for run in runs if readable_recording(run, log)]
-    if not runs:
-        raise VesselError("no video left a readable recording: see the logs in " + str(out / "logs"))
-    predictions, tracks = export_recordings(runs, out)
+    return runs
 
-    offline = export_offline_predictions(runs, out, calibration, params[0], args.detections == "labels")
-    summary = write_report(dataset, videos, out, predictions, tracks, runs, calibration, offline,
-                           "labels" if args.detections == "labels" else "frames")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    log(f"outputs in {out}: predictions.csv, predictions_offline.csv, fixes.csv, tracks.csv, summary.json, "
-        "plots, recording/")
+
+def _status(runs: list[VideoRun], videos: list[int]) -> int:
+    """0 when every video went through, else 1 with a line naming what failed."""
     failures = [f"video {run.video}: {', '.join(run.failed_nodes)}" for run in runs if run.failed_nodes]
     failures += [f"video {video}: no readable recording" for video in videos
                  if video not in {run.video for run in runs}]
@@ -498,7 +532,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         log("these failed, and the figures above lack what they would have given: " + "; ".join(failures))
         return 1
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -49,8 +49,11 @@ def parameters_markdown(tables: Sequence[ParameterTable]) -> str:
 
 def rendered_files(root: Path) -> dict[Path, str]:
     """Every file ``render`` writes -> its text."""
+    from vessel_tools.calibrate_options import calibrate_parameters
+
     tables = node_tables()
-    files = {root / "config" / "parts" / f"{table.node}.yaml": part_file_text(table) for table in tables}
+    files = {root / "config" / "parts" / f"{table.node}.yaml": part_file_text(table)
+             for table in [*tables, calibrate_parameters()]}
     doc = root / "docs" / "parameters.md"
     text = doc.read_text(encoding="utf-8") if doc.is_file() else f"# Parameters\n\n{BEGIN}\n{END}\n"
     if BEGIN not in text or END not in text:

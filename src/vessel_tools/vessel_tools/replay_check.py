@@ -14,6 +14,7 @@ import random
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from vessel_common.command_line import command_line_tool
@@ -27,10 +28,6 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     """Run the replay and return the figures (see the module docstring)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import CompressedImage
-
 
     with bag_io.BagReader(bag) as reader:
         expected = [bag_io.sec_to_ns(t) for t, _ in reader.images()]
@@ -42,29 +39,9 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     node = rclpy.create_node("replay_check", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    received: list[int] = []
-    arrival: list[float] = []
-    clock: list[int] = []
-
-    def on_image(message) -> None:
-        received.append(message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec)
-        arrival.append(time.monotonic())
-
-    node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, on_image,
-                             image_qos_profile(image_qos, reliable_depth=10))
-    node.create_subscription(
-        Clock, "/clock", lambda m: clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
-        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
-    )
-
-    exe = repo_root() / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    heard = _subscribe(node, image_qos)
     started = time.monotonic()
-    process = subprocess.Popen(
-        [str(exe), "--ros-args", "-p", f"source:={bag}", "-p", f"rate:={rate}", "-p", "wait_for_subscribers:=1",
-         "-p", f"image_qos:={image_qos}", "-p", "end_linger_s:=0.5"],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )
+    process = _start_camera(bag, rate, image_qos, domain_id)
     span_s = (expected[-1] - expected[0]) / 1e9
     limit = timeout_s or (span_s / rate + 60.0 if rate > 0 else 600.0)
     try:
@@ -79,6 +56,7 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)
+    received, arrival, clock = heard.received, heard.arrival, heard.clock
     return {
         "bag": str(bag),
         "rate": rate,
@@ -93,6 +71,47 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
         "camera_exit_status": process.returncode,
         "camera_summary": next((ln for ln in output.splitlines() if "ended:" in ln), output.strip()[-300:]),
     }
+
+
+@dataclass
+class _Heard:
+    """What the subscriber here received: image stamps (ns) with their arrival times, and /clock stamps (ns)."""
+
+    received: list[int] = field(default_factory=list)
+    arrival: list[float] = field(default_factory=list)
+    clock: list[int] = field(default_factory=list)
+
+
+def _subscribe(node, image_qos: str) -> _Heard:
+    """Subscribe ``node`` to the camera's images and to /clock; what they bring in."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import CompressedImage
+
+    heard = _Heard()
+
+    def on_image(message) -> None:
+        heard.received.append(message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec)
+        heard.arrival.append(time.monotonic())
+
+    node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, on_image,
+                             image_qos_profile(image_qos, reliable_depth=10))
+    node.create_subscription(
+        Clock, "/clock", lambda m: heard.clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
+    )
+    return heard
+
+
+def _start_camera(bag: Path, rate: float, image_qos: str, domain_id: int) -> subprocess.Popen:
+    """The installed camera node replaying ``bag`` at ``rate`` on ``domain_id``, its output captured."""
+    exe = repo_root() / "ros2_ws/install/vessel_detect/lib/vessel_detect/camera"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    return subprocess.Popen(
+        [str(exe), "--ros-args", "-p", f"source:={bag}", "-p", f"rate:={rate}", "-p", "wait_for_subscribers:=1",
+         "-p", f"image_qos:={image_qos}", "-p", "end_linger_s:=0.5"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
 
 
 @command_line_tool

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from vessel_fixtures.presets import paper_simulation_settings
 
 pytestmark = pytest.mark.ros
@@ -395,10 +396,10 @@ def test_a_restarted_fuser_refuses_a_pickled_state_file_and_carries_on_from_its_
     import pickle
 
     from rclpy.parameter import Parameter
-    from vessel_fixtures.ros_nodes import node_in_context
 
     from vessel_common.node_support import sec_to_stamp
     from vessel_common.state_file import VERSION
+    from vessel_fixtures.ros_nodes import node_in_context
     from vessel_msgs.msg import VesselTrackArray
     from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.fuser_node import FuserNode
@@ -443,3 +444,88 @@ def test_a_restarted_fuser_refuses_a_pickled_state_file_and_carries_on_from_its_
     after, lines, counts = run(messages[half:], str(path))  # the restart, on the JSON snapshot the first one wrote
     assert counts.get("resumed_from_state_file") == 1 and "state_file_refused" not in counts, lines
     assert after == straight[half:]
+
+
+@pytest.fixture
+def fuser_node(monkeypatch, ros_context):
+    """A FuserNode in this process on the built-in calibration, and the arrays it published."""
+    from rclpy.parameter import Parameter
+
+    from vessel_fixtures.ros_nodes import node_in_context
+    from vessel_track.fuser_node import FuserNode
+
+    node = node_in_context(monkeypatch, ros_context, FuserNode, [Parameter("camera.builtin_calibration", value=True)])
+    published: list = []
+    monkeypatch.setattr(node.publisher, "publish", published.append)
+    try:
+        yield node, published
+    finally:
+        node.destroy_node()
+
+
+T0 = 1601496000
+
+
+def _time(sec, nanosec=0):
+    from builtin_interfaces.msg import Time
+
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def test_findings_4_5_7_9_the_fuser_drops_impossible_tracks_and_keeps_the_others(fuser_node):
+    """Each of these used to reach /vessel/tracks as it came (a confidence of 1e9 included)."""
+    from vessel_tools.track.simulation import challenge_camera
+
+    node, published = fuser_node
+    camera = challenge_camera()
+    cases = [("confidence", 1e9, "bad_confidence"),                               # finding 7
+             ("id", "T2", "duplicate_track_id"),                                  # finding 4 (T1 and T2 dropped)
+             ("last_seen", 1_000_000, "bad_track_time"),                          # finding 5
+             ("screen_covariance", [math.nan, 0.0, 0.0, 16.0], "bad_screen_covariance"),   # finding 9
+             ("screen_covariance", [-16.0, 0.0, 0.0, 16.0], "bad_screen_covariance"),
+             ("status", 200, "bad_track_status"),
+             ("confidence", math.nan, "bad_confidence"),
+             ("first_seen", 5, "bad_track_time")]
+    for k, (name, value, kind) in enumerate(cases, start=1):
+        sec = T0 + 4 * k
+        msg = screen_tracks(camera, float(sec), k, _time(sec))
+        setattr(msg.tracks[0], name, _time(sec + value) if name.endswith("_seen") else value)
+        node.on_tracks(msg)
+        kept = {"T2", "T3"} if kind != "duplicate_track_id" else {"T3"}
+        assert {t.id for t in published[-1].tracks} == kept, (name, value)
+        assert node.health.counts[kind] == (2 if kind == "duplicate_track_id" else 1) + sum(
+            c[2] == kind for c in cases[:k - 1]), (name, value)
+    assert len(published) == len(cases)
+
+
+def test_findings_8_10_the_fuser_refuses_invalid_repeated_and_zero_stamps(fuser_node):
+    from vessel_tools.track.simulation import challenge_camera
+
+    node, published = fuser_node
+    camera = challenge_camera()
+    for sec, nanosec in ((T0, 0), (T0 + 1, 1_500_000_000), (T0, 0), (0, 0), (-100, 0), (T0 - 1, 800_000_000),
+                         (T0 + 4, 0)):
+        node.on_tracks(screen_tracks(camera, sec + nanosec * 1e-9, 1, _time(sec, nanosec)))
+    assert [m.header.stamp.sec for m in published] == [T0, T0 + 4]
+    counts = node.health.counts
+    assert (counts["bad_stamp"], counts["duplicate_stamp"], counts["out_of_order_frames"]) == (3, 1, 1)
+
+
+def test_a_replay_restart_still_reaches_the_fuser_with_its_lost_tracks(fuser_node):
+    """The tracker reports its old tracks LOST at the restarted (earlier) stamp, seen after it: they go on."""
+    from vessel_common.node_support import sec_to_stamp
+    from vessel_msgs.msg import VesselTrack, VesselTrackArray
+    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker_node import track_to_msg
+
+    node, published = fuser_node
+    tracker = MultiTargetTracker(TrackerConfig())
+    boxes = np.array([[600.0, 400.0, 660.0, 424.0]])
+    for stamp in (T0 + 0.0, T0 + 4.0, T0 + 8.0, T0 + 2.0):
+        msg = VesselTrackArray()
+        msg.header.stamp = sec_to_stamp(stamp)
+        msg.tracks = [track_to_msg(s, msg.header) for s in tracker.update(stamp, boxes, np.array([0.9]))]
+        node.on_tracks(msg)
+    assert len(published) == 4 and tracker.counters.resets == 1
+    assert VesselTrack.STATUS_LOST in {t.status for t in published[-1].tracks}
+    assert node.health.counts.get("stamp_backwards") == 1 and "bad_track_time" not in node.health.counts

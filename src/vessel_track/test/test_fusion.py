@@ -3,11 +3,11 @@ import math
 
 import numpy as np
 import pytest
-from vessel_fixtures.presets import paper_selection
 
 from vessel_calib.camera_model import CameraModel
 from vessel_common.errors import DataError
 from vessel_common.state_file import StateFile, settings_fingerprint
+from vessel_fixtures.presets import paper_selection
 from vessel_tools.track.pipeline import screen_track_of
 from vessel_tools.track.simulation import challenge_camera, harbour_scenario
 from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world

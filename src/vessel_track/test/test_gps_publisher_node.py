@@ -75,53 +75,114 @@ def test_an_impossible_target_is_never_published_as_a_fix(bad, problem):
     assert fields.problem == problem and fields.detail
 
 
-def _track_message(track_id, latitude=32.703, stamp_s=100):
+def _track_message(track_id, latitude=32.703, stamp_s=100, **fields):
+    """A VesselTrack as the fuser publishes it in an array stamped ``stamp_s``, with ``fields`` replaced."""
     from vessel_msgs.msg import VesselTrack
 
     track = VesselTrack()
     track.id, track.is_target, track.has_world, track.status = track_id, True, True, 1
     track.latitude, track.longitude = latitude, -117.233
-    track.last_seen.sec = stamp_s
+    track.header.stamp.sec = track.last_seen.sec = stamp_s
+    track.first_seen.sec = stamp_s - 40
+    track.confidence = 0.8
+    track.screen_covariance = [16.0, 0.0, 0.0, 16.0]
     track.position_covariance = [25.0, 5.0, 5.0, 4.0]
+    track.velocity_covariance = [0.5, 0.0, 0.0, 0.5]
     track.expected_error_m = 10.0
+    for name, value in fields.items():
+        setattr(track, name, value)
     return track
 
 
-def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(monkeypatch, ros_context):
-    """A stamp with nanosec >= 1e9 is invalid; two tracks flagged is_target (even with one id) are ambiguous."""
-    import rclpy
-    import rclpy.node
+@pytest.fixture
+def gps_node(monkeypatch, ros_context):
+    """A GpsPublisherNode in this process: ``send(sec, *tracks, nanosec=0)`` and what it published."""
     import rclpy.parameter
-    from sensor_msgs.msg import NavSatStatus
+
+    from vessel_fixtures.ros_nodes import node_in_context
 
     pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
     from vessel_msgs.msg import VesselTrackArray
     from vessel_track.gps_publisher_node import GpsPublisherNode
 
-    context = ros_context
-    node_init = rclpy.node.Node.__init__
     builtin = [rclpy.parameter.Parameter("camera.builtin_calibration", value=True)]
-    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, name, **kw: node_init(
-        self, name, context=context, parameter_overrides=builtin, **kw))
-    node = GpsPublisherNode()
+    node = node_in_context(monkeypatch, ros_context, GpsPublisherNode, builtin)
+    fixes, arrays = [], []
+    monkeypatch.setattr(node.fix_publisher, "publish", fixes.append)
+    monkeypatch.setattr(node.fixes_publisher, "publish", arrays.append)
+
+    def send(sec, *tracks, nanosec=0):
+        message = VesselTrackArray()
+        message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
+        message.tracks = list(tracks)
+        node.on_tracks(message)
+
     try:
-        fixes = []
-        node.fix_publisher.publish = fixes.append
-
-        def frame(sec, *tracks, nanosec=0):
-            message = VesselTrackArray()
-            message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
-            message.tracks = list(tracks)
-            node.on_tracks(message)
-
-        frame(100, _track_message("T1"))
-        assert [f.status.status for f in fixes] == [NavSatStatus.STATUS_FIX]
-        frame(101, _track_message("T1", stamp_s=101), nanosec=1_000_000_000)
-        assert len(fixes) == 1 and node.health.counts.get("bad_stamp") == 1
-        frame(102, _track_message("T1", stamp_s=102), _track_message("T1", 32.704, stamp_s=102))
-        assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX and node.health.counts["several_targets"] == 1
-        frame(103, _track_message("T1", 95.0, stamp_s=103))
-        assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX
-        assert node.health.counts["impossible_position"] == 1
+        yield SimpleNamespace(node=node, send=send, fixes=fixes, arrays=arrays, counts=lambda: node.health.counts)
     finally:
         node.destroy_node()
+
+
+def test_the_node_skips_bad_stamps_and_publishes_no_fix_for_two_targets(gps_node):
+    """A stamp with nanosec >= 1e9 is invalid; two tracks flagged is_target are ambiguous."""
+    from sensor_msgs.msg import NavSatStatus
+
+    send, fixes = gps_node.send, gps_node.fixes
+    send(100, _track_message("T1"))
+    assert [f.status.status for f in fixes] == [NavSatStatus.STATUS_FIX]
+    send(101, _track_message("T1", stamp_s=101), nanosec=1_000_000_000)
+    assert len(fixes) == 1 and gps_node.counts().get("bad_stamp") == 1
+    send(102, _track_message("T1", stamp_s=102), _track_message("T2", 32.704, stamp_s=102))
+    assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX and gps_node.counts()["several_targets"] == 1
+    send(103, _track_message("T1", 95.0, stamp_s=103))
+    assert fixes[-1].status.status == NavSatStatus.STATUS_NO_FIX
+    assert gps_node.counts()["impossible_position"] == 1
+
+
+def test_finding_4_two_tracks_with_one_id_are_refused_and_counted(gps_node):
+    from sensor_msgs.msg import NavSatStatus
+
+    gps_node.send(100, _track_message("T1"), _track_message("T1", 32.704), _track_message("T2", is_target=False))
+    assert [f.status.status for f in gps_node.fixes] == [NavSatStatus.STATUS_NO_FIX]
+    assert [t.id for t in gps_node.arrays[-1].tracks] == ["T2"]
+    assert gps_node.counts()["duplicate_track_id"] == 2 and "several_targets" not in gps_node.counts()
+
+
+@pytest.mark.parametrize("bad, kind", [
+    (dict(last_seen=SimpleNamespace(sec=104 + 1_000_000, nanosec=0)), "bad_track_time"),   # finding 5
+    (dict(expected_error_m=-5.0), "bad_expected_error"),                                    # finding 6
+    (dict(status=200), "bad_track_status"),                                                 # finding 9
+    (dict(confidence=math.nan), "bad_confidence"),
+    (dict(screen_covariance=[math.nan, 0.0, 0.0, 16.0]), "bad_screen_covariance"),
+    (dict(screen_covariance=[-16.0, 0.0, 0.0, 16.0]), "bad_screen_covariance"),
+    (dict(first_seen=SimpleNamespace(sec=110, nanosec=0)), "bad_track_time"),
+    (dict(position_covariance=[math.nan] * 4), "bad_covariance"),
+])
+def test_findings_5_6_9_an_impossible_track_is_neither_a_fix_nor_in_the_array(gps_node, bad, kind):
+    """Each used to be published: a future last_seen or a negative expected error even as STATUS_FIX."""
+    from builtin_interfaces.msg import Time
+    from sensor_msgs.msg import NavSatStatus
+
+    bad = {name: Time(sec=v.sec, nanosec=v.nanosec) if isinstance(v, SimpleNamespace) else v
+           for name, v in bad.items()}
+    gps_node.send(100, _track_message("T1"))
+    gps_node.send(104, _track_message("T1", stamp_s=104, **bad), _track_message("T2", stamp_s=104, is_target=False))
+    assert [f.status.status for f in gps_node.fixes] == [NavSatStatus.STATUS_FIX, NavSatStatus.STATUS_NO_FIX]
+    assert [t.id for t in gps_node.arrays[-1].tracks] == ["T2"]
+    assert gps_node.counts()[kind] == 1
+
+
+def test_findings_8_10_one_fix_per_stamp_and_none_stamped_zero_or_negative(gps_node):
+    """A duplicate or slightly older stamp and zero or negative stamps publish nothing; a replay restart does."""
+    send, fixes = gps_node.send, gps_node.fixes
+    send(100, _track_message("T1"))
+    send(100, _track_message("T1"))
+    send(99, _track_message("T1", stamp_s=99), nanosec=800_000_000)
+    send(0, _track_message("T1", stamp_s=0))
+    send(-100, _track_message("T1", stamp_s=-100))
+    assert [f.header.stamp.sec for f in fixes] == [100] and len(gps_node.arrays) == 1
+    counts = gps_node.counts()
+    assert (counts["duplicate_stamp"], counts["out_of_order_frames"], counts["bad_stamp"]) == (1, 1, 2)
+    send(50, _track_message("T1", stamp_s=50))  # a replay restarted
+    assert [f.header.stamp.sec for f in fixes] == [100, 50] and gps_node.counts()["stamp_backwards"] == 1
+    assert all(f.header.stamp.sec > 0 for f in fixes)

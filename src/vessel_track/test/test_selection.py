@@ -5,9 +5,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from vessel_fixtures.presets import paper_selection
 
 from vessel_common.errors import DataError
+from vessel_fixtures.presets import paper_selection
 from vessel_track.selection import (
     OnlineTargetSelector,
     Trajectory,

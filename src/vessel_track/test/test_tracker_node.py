@@ -277,9 +277,9 @@ def test_a_restarted_tracker_refuses_a_pickled_state_file_and_carries_on_from_it
     import pickle
 
     from rclpy.parameter import Parameter
-    from vessel_fixtures.ros_nodes import node_in_context
 
     from vessel_common.state_file import VERSION
+    from vessel_fixtures.ros_nodes import node_in_context
     from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.tracker_node import TrackerNode
 
@@ -318,3 +318,56 @@ def test_a_restarted_tracker_refuses_a_pickled_state_file_and_carries_on_from_it
         return track_id if track_id in known else f"T{int(track_id[1:]) - max_tracks}"
 
     assert [[(renumbered(i), *rest) for i, *rest in frame] for frame in after] == straight[half:]
+
+
+@pytest.fixture
+def tracker_node(monkeypatch, ros_context):
+    """A TrackerNode in this process with its defaults, and the arrays it published."""
+    from vessel_fixtures.ros_nodes import node_in_context
+    from vessel_track.tracker_node import TrackerNode
+
+    node = node_in_context(monkeypatch, ros_context, TrackerNode)
+    published: list = []
+    monkeypatch.setattr(node.publisher, "publish", published.append)
+    try:
+        yield node, published
+    finally:
+        node.destroy_node()
+
+
+def _stamped(sec, nanosec, boxes=((100.0, 100.0, 140.0, 120.0),), scores=(0.9,)):
+    msg = detection_array(1.0, boxes, scores)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    return msg
+
+
+def test_findings_8_10_the_tracker_refuses_invalid_repeated_and_zero_stamps(tracker_node):
+    """Invalid, repeated and zero or negative stamps are refused; a replay restart still resets the tracker.
+
+    A stamp with nanosec >= 1e9 made the next good frame look out of order, a repeated stamp was a second frame,
+    and zero and negative stamps were tracked and published.
+    """
+    from vessel_common.node_support import stamp_to_sec
+    from vessel_msgs.msg import VesselTrack
+
+    node, published = tracker_node
+    for sec, nanosec in ((100, 0), (100, 1_500_000_000), (101, 0), (101, 0), (0, 0), (-100, 0), (100, 800_000_000)):
+        node.on_detections(_stamped(sec, nanosec))
+    assert [stamp_to_sec(m.header.stamp) for m in published] == [100.0, 101.0]
+    assert all(stamp_to_sec(t.first_seen) > 0 and stamp_to_sec(t.last_seen) > 0 for m in published for t in m.tracks)
+    counts = node.health.counts
+    assert (counts["bad_stamp"], counts["duplicate_stamp"], counts["out_of_order_frames"]) == (3, 1, 1)
+    node.on_detections(_stamped(50, 0))  # back by more than backwards_reset_s: a replay restarted
+    assert stamp_to_sec(published[-1].header.stamp) == 50.0 and node.health.counts["resets"] == 1
+    assert VesselTrack.STATUS_LOST in {t.status for t in published[-1].tracks}
+
+
+def test_finding_7_a_score_outside_0_1_drops_the_detection_not_the_frame(tracker_node):
+    node, published = tracker_node
+    boxes = ((100.0, 100.0, 140.0, 120.0), (600.0, 300.0, 660.0, 330.0))
+    node.on_detections(_stamped(100, 0, boxes, (0.9, 0.8)))
+    node.on_detections(_stamped(104, 0, boxes, (1e9, 0.7)))
+    node.on_detections(_stamped(108, 0, boxes, (0.9, math.nan)))
+    assert len(published) == 3 and node.health.counts["bad_score"] == 2
+    assert all(0.0 <= t.confidence <= 1.0 for m in published for t in m.tracks)
+    assert [t.detection_count for t in published[-1].tracks] == [2, 2]  # each kept its good detections

@@ -8,6 +8,12 @@ coordinates, online target selection); this node converts messages and reports p
 
 A track counts as measured in a frame when its ``last_seen`` equals the array's stamp (the tracker sets it to
 the stamp of the detection it associated).
+
+Refused at the boundary (``vessel_track.message_checks``): a message with an invalid stamp, the previous message's
+stamp or one slightly before it (a step back of ``BACKWARDS_RESET_S`` or more goes on: a replay restarted, the
+world filters reset), and each track with a repeated id, an unknown status, a confidence outside [0, 1], times
+after the stamp, or a screen covariance or velocity that is not finite (a box without a position is not refused:
+it goes on without a world position, ``invalid_track``).
 """
 from __future__ import annotations
 
@@ -23,6 +29,7 @@ from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
 from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.message_checks import checked_tracks, header_refusal, order_refusal, report
 from vessel_track.node_params import fuser_settings_of, main_with_checks, refuse_moved_parameters
 from vessel_track.parameter_tables import FUSER_PARAMETERS
 
@@ -40,7 +47,6 @@ PROBLEM_MESSAGES = {
     "outlier_rejected": "a fused position far from its track's prediction was rejected by the world filter",
     "identity_changed": "a track's positions stopped fitting its world filter (motion.max_rejections outliers in a "
                         "row): the tracker may have moved it onto another vessel, so its history was ended",
-    "nonfinite_stamp": "a track array with a non-finite stamp was dropped",
     "shape_jump": "a box much taller for its width than its track's recent boxes (spray or wake below the hull) was "
                   "trusted less",
     "height_drop": "a box much shorter than its track's recent boxes (only the cabin or console boxed) was trusted "
@@ -153,20 +159,28 @@ class FuserNode(Node):
         self.core.error_model = settings.error_model
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
-        """Fuse one image's tracks and publish them with their world state."""
-        stamp = stamp_to_sec(msg.header.stamp)
-        if not math.isfinite(stamp):
-            self.health.problem("nonfinite_stamp", PROBLEM_MESSAGES["nonfinite_stamp"])
+        """Fuse one image's tracks and publish them with their world state (what ``message_checks`` refuses aside)."""
+        refusal = header_refusal(msg.header.stamp)
+        if refusal is not None:
+            report(self.health, [refusal])
             return
-        source = self.settings.fusion.screen_source
-        screen = [screen_track_from_msg(track, stamp, source) for track in msg.tracks]
+        stamp = stamp_to_sec(msg.header.stamp)
         if self.state.resume(stamp, self.core):
             return  # the snapshot resumed already holds this frame
+        previous = self.core.last_stamp
+        refusal = order_refusal(stamp, previous)
+        if refusal is not None:
+            report(self.health, [refusal])
+            return
+        tracks, refusals = checked_tracks(msg.tracks, msg.header.stamp, previous)
+        report(self.health, refusals)
+        source = self.settings.fusion.screen_source
+        screen = [screen_track_from_msg(track, stamp, source) for track in tracks]
         world = self.core.update(stamp, screen)
         by_id = {id(w.screen): w for w in world}
         out = VesselTrackArray()
         out.header = msg.header
-        for track_msg, screen_track in zip(msg.tracks, screen, strict=True):
+        for track_msg, screen_track in zip(tracks, screen, strict=True):
             out.tracks.append(fill_world_fields(track_msg, by_id[id(screen_track)]))
         publishing = self.standby.publishing()
         if publishing:

@@ -14,7 +14,11 @@ Subscribes ``/vessel/tracks`` (the fuser's ``VesselTrackArray``); publishes
   drop them), for collision avoidance.
 
 The conversion is ``fix_fields_of_track`` (ROS-free, unit-tested); the node reports problems on
-``/diagnostics``.
+``/diagnostics``. Refused at the boundary (``vessel_track.message_checks``): a message with an invalid stamp, the
+previous message's stamp or one slightly before it (no second fix with one stamp; a step back of
+``BACKWARDS_RESET_S`` or more goes on, counted as ``stamp_backwards``: a replay restarted), and each track with a
+repeated id, an unknown status, a confidence outside [0, 1], times after the stamp, or a covariance or expected
+error that is not finite and non-negative (NaN only without ``has_world``).
 """
 from __future__ import annotations
 
@@ -31,6 +35,14 @@ from vessel_common.node_parameters import declare_table
 from vessel_common.node_support import NodeHealth, Standby, reliable_qos, stamp_to_sec
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
+from vessel_track.message_checks import (
+    TIME_TOLERANCE_S,
+    checked_tracks,
+    covariance_problem,
+    header_refusal,
+    order_refusal,
+    report,
+)
 from vessel_track.node_params import main_with_checks
 from vessel_track.parameter_tables import GPS_PUBLISHER_PARAMETERS
 
@@ -80,25 +92,6 @@ def enu_covariance(position_covariance_en, expected_error_m: float, mode: str = 
     return [float(v) for v in out.ravel()]
 
 
-def covariance_problem(position_covariance_en) -> str:
-    """Why a 2x2 east-north covariance (4 values, row-major) cannot be published, or "" if it can.
-
-    It must be finite, symmetric and positive semi-definite, to the precision of its own entries.
-    """
-    P = np.asarray(position_covariance_en, dtype=float).reshape(-1)
-    if P.size != 4:
-        return f"position covariance has {P.size} values, not 4"
-    if not np.all(np.isfinite(P)):
-        return "position covariance is not finite"
-    P = P.reshape(2, 2)
-    scale = float(np.abs(P).max()) or 1.0
-    if abs(P[0, 1] - P[1, 0]) > 1e-6 * scale:
-        return f"position covariance is not symmetric ({P[0, 1]:g} against {P[1, 0]:g})"
-    if float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()) < -1e-9 * scale:
-        return f"position covariance is not positive semi-definite (diagonal {P[0, 0]:g}, {P[1, 1]:g})"
-    return ""
-
-
 def fix_fields_of_track(track, stamp: float, max_coast_s: float, mode: str = "sum",
                         altitude_variance_m2: float = 1.0e4, origin: tuple[float, float] | None = None,
                         max_distance_m: float = MAX_TARGET_DISTANCE_M) -> FixFields:
@@ -122,7 +115,8 @@ def fix_fields_of_track(track, stamp: float, max_coast_s: float, mode: str = "su
         return FixFields(**{**no_fix.__dict__, "problem": "implausible_target",
                             "detail": f"the target is more than {max_distance_m / 1000:g} km from the camera: is "
                                       "the fuser using the same calibration?"})
-    if stamp - stamp_to_sec(track.last_seen) > max_coast_s:
+    age = stamp - stamp_to_sec(track.last_seen)
+    if age > max_coast_s or age < -TIME_TOLERANCE_S:  # not seen for too long, or "seen" after this image
         return no_fix
     problem = "" if all(not math.isfinite(v) for v in track.position_covariance) else covariance_problem(
         track.position_covariance)
@@ -172,17 +166,28 @@ class GpsPublisherNode(Node):
         self.publish_no_fix = values["publish_no_fix"]
 
     def on_tracks(self, msg: VesselTrackArray) -> None:
-        """Publish the target's fix and the array of every vessel for one image."""
-        if msg.header.stamp.nanosec >= 1_000_000_000:
-            self.health.problem("bad_stamp", f"track array stamp has nanosec {msg.header.stamp.nanosec} (must be "
-                                "below 1e9): message skipped; fix the publisher's stamps")
+        """Publish the target's fix and the array of every vessel for one image.
+
+        What ``message_checks`` refuses is left out: nothing is published for a refused message, and a refused
+        track is neither the target nor in the array.
+        """
+        refusal = header_refusal(msg.header.stamp)
+        if refusal is not None:
+            report(self.health, [refusal])
             return
         stamp = stamp_to_sec(msg.header.stamp)
-        if self._last_stamp is not None and stamp < self._last_stamp:
+        previous = self._last_stamp
+        refusal = order_refusal(stamp, previous)
+        if refusal is not None:
+            report(self.health, [refusal])
+            return
+        if previous is not None and stamp < previous:
             self.health.problem("stamp_backwards", "track stamps went backwards (replay restarted?)")
         self._last_stamp = stamp
+        tracks, refusals = checked_tracks(msg.tracks, msg.header.stamp, previous, world=True)
+        report(self.health, refusals)
         self.health.count("frames")
-        targets = [t for t in msg.tracks if t.is_target]
+        targets = [t for t in tracks if t.is_target]
         target = targets[0] if len(targets) == 1 else None
         if len(targets) > 1:
             # Which one is the vessel is unknown: publishing either could send a collision-avoidance stack
@@ -195,27 +200,31 @@ class GpsPublisherNode(Node):
             self.health.problem(fields.problem, f"{fields.detail}: NO_FIX published instead")
         publishing = self.standby.publishing()
         if publishing and (fields.status == NavSatStatus.STATUS_FIX or self.publish_no_fix):
-            fix = NavSatFix()
-            fix.header.stamp = msg.header.stamp
-            fix.header.frame_id = self.frame_id
-            fix.status.status = fields.status
-            fix.status.service = 0
-            fix.latitude = fields.latitude
-            fix.longitude = fields.longitude
-            fix.altitude = float(self.altitude_m)
-            fix.position_covariance = fields.covariance_enu
-            fix.position_covariance_type = (self.covariance_type if fields.status == NavSatStatus.STATUS_FIX
-                                            else NavSatFix.COVARIANCE_TYPE_UNKNOWN)
-            self.fix_publisher.publish(fix)
-            self.health.count("fixes" if fields.status == NavSatStatus.STATUS_FIX else "no_fixes")
+            self._publish_fix(msg.header.stamp, fields)
         if publishing and self.fixes_publisher is not None:
             out = VesselTrackArray()
             out.header = msg.header
-            out.tracks = [t for t in msg.tracks if t.has_world or t.status == STATUS_LOST]
+            out.tracks = [t for t in tracks if t.has_world or t.status == STATUS_LOST]
             self.fixes_publisher.publish(out)
         if target is not None and fields.status == NavSatStatus.STATUS_FIX:
             self.health.set_value("target", target.id)
             self.health.set_value("target_distance_m", float(target.distance_m))
+
+    def _publish_fix(self, stamp, fields: FixFields) -> None:
+        """One NavSatFix on ``fix_topic``: the target's position, or NO_FIX."""
+        fix = NavSatFix()
+        fix.header.stamp = stamp
+        fix.header.frame_id = self.frame_id
+        fix.status.status = fields.status
+        fix.status.service = 0
+        fix.latitude = fields.latitude
+        fix.longitude = fields.longitude
+        fix.altitude = float(self.altitude_m)
+        fix.position_covariance = fields.covariance_enu
+        fix.position_covariance_type = (self.covariance_type if fields.status == NavSatStatus.STATUS_FIX
+                                        else NavSatFix.COVARIANCE_TYPE_UNKNOWN)
+        self.fix_publisher.publish(fix)
+        self.health.count("fixes" if fields.status == NavSatStatus.STATUS_FIX else "no_fixes")
 
 
 def main(args=None) -> None:

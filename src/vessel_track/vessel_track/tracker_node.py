@@ -10,7 +10,8 @@ detection (equal to the header stamp when the track was updated by this image). 
 
 Bad input never stops the node: NaN or non-positive boxes are dropped, stamps going back by
 ``backwards_reset_s`` reset the tracker (a replay restarted), a long gap times every track out; each kind is
-logged once and counted on ``/diagnostics``.
+logged once and counted on ``/diagnostics``. What is refused at the boundary (an invalid, repeated or slightly
+older stamp drops the message; a score outside [0, 1] drops the detection) is ``vessel_track.message_checks``.
 """
 
 from __future__ import annotations
@@ -27,6 +28,13 @@ from vessel_common.node_support import NodeHealth, NodeState, Standby, reliable_
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
+from vessel_track.message_checks import (
+    checked_detections,
+    detection_refusal,
+    header_refusal,
+    order_refusal,
+    report,
+)
 from vessel_track.node_params import main_with_checks
 from vessel_track.parameter_tables import EVERY_CLASS, TRACKER_PARAMETERS
 from vessel_track.tracker import (
@@ -38,8 +46,8 @@ from vessel_track.tracker import (
 )
 
 PROBLEMS = {
-    "detections_invalid": "detections with NaN/inf coordinates, a NaN score or a width/height below "
-                          "min_box_size_px (negative sizes) were dropped",
+    "detections_invalid": "detections with NaN/inf coordinates or a width/height below min_box_size_px "
+                          "(negative sizes) were dropped",
     "resets": "detection stamps went back by backwards_reset_s or more (replay restarted?): the tracker was reset "
               "and every track reported LOST",
     "out_of_order_frames": "a detection array stamped slightly before the previous one was dropped",
@@ -62,11 +70,14 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
     detector's vessel-of-interest class), an accepted detection's score is that hypothesis' score wherever it
     has one: every vessel is tracked, and each track's confidence is its probability of being the target.
     ``with_labels`` also returns each kept detection's class (its first accepted hypothesis, '' without one).
+    A detection with a score outside [0, 1] is left out, as the node refuses it (``message_checks``).
     """
     boxes = []
     scores = []
     labels = []
     for det in msg.detections:
+        if detection_refusal(det) is not None:
+            continue
         accepted = [float(r.hypothesis.score) for r in det.results
                     if classes is None or r.hypothesis.class_id in classes]
         target = [float(r.hypothesis.score) for r in det.results
@@ -182,21 +193,29 @@ class TrackerNode(Node):
         self.tracker.config = config
 
     def on_detections(self, msg: Detection2DArray) -> None:
-        """Track one image's detections and publish every track with the image's header."""
+        """Track one image's detections and publish every track with the image's header.
+
+        Refused first (``message_checks``): a message with an invalid stamp, the previous message's stamp or one
+        slightly before it (a step back of ``backwards_reset_s`` or more goes on: the tracker resets), and each
+        detection with a score outside [0, 1].
+        """
+        refusal = header_refusal(msg.header.stamp)
+        if refusal is not None:
+            report(self.health, [refusal])
+            return
         stamp = stamp_to_sec(msg.header.stamp)
-        if stamp == 0.0:
-            self.health.problem("zero_stamp", "a detection array has a zero header stamp: set the image stamp")
-        boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
-        dropped_before = self.tracker.counters.out_of_order_frames
         if self.state.resume(stamp, self.tracker):
             return  # the snapshot resumed already holds this frame
+        refusal = order_refusal(stamp, self.tracker.last_stamp, self.tracker.config.backwards_reset_s)
+        if refusal is not None:
+            report(self.health, [refusal])  # nothing published: downstream never sees time go back a little
+            return
+        report(self.health, checked_detections(msg.detections)[1])  # detections_to_arrays leaves them out
+        boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
         try:
             states = self.tracker.update(stamp, boxes, scores, labels)
         except VesselError as error:
             self.health.problem("bad_message", f"detection array dropped: {error}")
-            return
-        if self.tracker.counters.out_of_order_frames != dropped_before:
-            self._report(len(boxes), states)  # nothing published: downstream never sees time go back a little
             return
         out = VesselTrackArray()
         out.header = msg.header

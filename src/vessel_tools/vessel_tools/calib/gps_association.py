@@ -26,7 +26,8 @@ from typing import NoReturn
 import numpy as np
 
 from vessel_calib import geodesy
-from vessel_calib.camera_model import CameraModel, box_points, pinhole_decomposition
+from vessel_calib.camera_model import CameraModel, box_points
+from vessel_calib.pinhole import pinhole_decomposition
 from vessel_common.errors import CalibrationError
 from vessel_tools.calib.calibration import DEFAULT_BOX_ANCHOR, CalibrationResult, FitOptions, calibrate
 from vessel_tools.calib.homography import front_sign

@@ -196,9 +196,7 @@ def update_detector_size_prior(path: Path, model: BoxSizeDistanceModel) -> bool:
     return True
 
 
-@command_line_tool
-def main(argv: list[str] | None = None) -> int:
-    """Command line: ``--data DIR --videos 7-12 [--calib FILE] --out FILE.yaml``."""
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="./vessel fit distance-model",
                                      description="Fit the box-size distance model and the fusion weights.")
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default: $VESSEL_DATA or "
@@ -216,8 +214,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--in-sample", action="store_true",
                         help="measure the cue noise on the training boxes themselves instead of leave-one-video-out "
                           "(in-sample is optimistic: the calibration was fitted on the same boxes)")
-    args = parser.parse_args(argv)
+    return parser
 
+
+@command_line_tool
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``--data DIR --videos 7-12 [--calib FILE] --out FILE.yaml``."""
+    args = _parser().parse_args(argv)
     dataset = open_dataset(args.data)
     camera, camera_source = load_camera(args.calib, dataset)
     videos = parse_videos(args.videos)
@@ -235,19 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     kept = settings.fusion if settings is not None else FusionConfig()
     water_level = settings.water_level.load() if settings is not None else None
     config = kept if args.detections is not None else dataclasses.replace(kept, anchor_offset=0.0)
-    if args.in_sample:
-        if args.detections is None:
-            stamps = training_pairs(dataset, camera, videos, with_stamps=True)[2]
-        else:
-            stamps = detector_pairs(dataset, camera, videos, args.detections, with_stamps=True)[2]
-        levels = None if water_level is None else water_level.level_at(stamps)
-        stats = cue_statistics_of_residuals(*cue_residuals_at_levels(camera, model, boxes, world, levels,
-                                                                     config))
-        how = "in-sample"
-    else:
-        stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections,
-                                               water_level=water_level)
-        how = "leave-one-video-out"
+    stats, how = _cue_statistics(args, dataset, camera, videos, model, boxes, world, config, water_level)
     update_params_file(args.out, args.node, "distance_model", model.to_params())
     fusion_block = kept.to_params()
     fusion_block.update(stats.to_params())
@@ -262,6 +253,21 @@ def main(argv: list[str] | None = None) -> int:
           f"{', detector.size_prior.model' if detector_prior else ''})")
     return 0
 
+
+def _cue_statistics(args, dataset, camera, videos, model, boxes, world, config, water_level):
+    """The cue noise and fusion weights, in-sample or leave-one-video-out, and which of the two it is."""
+    if args.in_sample:
+        if args.detections is None:
+            stamps = training_pairs(dataset, camera, videos, with_stamps=True)[2]
+        else:
+            stamps = detector_pairs(dataset, camera, videos, args.detections, with_stamps=True)[2]
+        levels = None if water_level is None else water_level.level_at(stamps)
+        stats = cue_statistics_of_residuals(*cue_residuals_at_levels(camera, model, boxes, world, levels,
+                                                                     config))
+        return stats, "in-sample"
+    stats = cross_validated_cue_statistics(dataset, videos, camera.box_anchor, config, args.detections,
+                                           water_level=water_level)
+    return stats, "leave-one-video-out"
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -4,9 +4,9 @@
         [--mode online|offline] [--calib FILE.yaml] [--params FILE.yaml] [--appearance MODEL.npz] [--no-eval]
 
 writes ``predictions.csv`` (``video,t_utc_s,lat,lon``: the vessel of interest), ``tracks.csv`` (every track,
-every frame), ``counts.json`` (per video: the tracker's, fuser's and selection's counters: joins, switches,
-identity changes, outliers, rejected boxes) and then scores them (``vessel_tools.track.evaluation``: ``summary.json``,
-``scores.csv``, plots).
+every frame; both ``vessel_tools.track.pipeline_results``), ``counts.json`` (per video: the tracker's, fuser's and
+selection's counters: joins, switches, identity changes, outliers, rejected boxes) and then scores them
+(``vessel_tools.track.evaluation``: ``summary.json``, ``scores.csv``, plots).
 
 Detections: ``labels`` = the hand-labelled boxes of the vessel of interest (primary pass, score 1.0), one
 frame per labelled frame; ``FILE.csv`` = the detector's output, columns ``video,frame,x1,y1,x2,y2,score,class_id``
@@ -49,29 +49,29 @@ from vessel_tools.track import appearance
 from vessel_tools.track.distance_model_fit import cross_validated_cue_statistics, fit_distance_model, training_pairs
 from vessel_tools.track.evaluation import evaluate, format_table
 from vessel_tools.track.offline_data import (
-    PREDICTION_HEADER,
     DetectionFrame,
-    atomic_lines,
     csv_detections,
     default_params_path,
     label_detections,
     load_camera,
     open_dataset,
-    prediction_line,
-    seconds_of_day,
+)
+from vessel_tools.track.pipeline_results import (
+    Prediction,
+    TrackRow,
+    VideoResult,
+    write_predictions_csv,
+    write_target_measurement_csvs,
+    write_tracks_csv,
 )
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
-from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser, WorldTrack
+from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser
 from vessel_track.parameter_tables import GPS_PUBLISHER_PARAMETERS
 from vessel_track.selection import Trajectory, select_target
 from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
 from vessel_track.tracker import MultiTargetTracker, TrackerConfig, load_tracker_config, node_values
 
 MODES = ("online", "offline")
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Running
 
 
 def screen_track_of(state, source: str = "measured") -> ScreenTrack:
@@ -90,41 +90,6 @@ def screen_track_of(state, source: str = "measured") -> ScreenTrack:
                        detection_count=int(state.detection_count), first_seen=float(state.first_seen),
                        last_seen=float(state.last_seen), center_cov=np.asarray(state.center_cov, float),
                        velocity_px=np.asarray(state.velocity, float))
-
-
-@dataclass
-class Prediction:
-    """One predicted position of the vessel of interest."""
-
-    video: int
-    stamp: float
-    lat: float
-    lon: float
-    x: float
-    y: float
-    track_id: str
-    measured: bool
-
-
-@dataclass
-class TrackRow:
-    """One track in one frame (tracks.csv)."""
-
-    video: int
-    frame: int
-    stamp: float
-    world: WorldTrack
-
-
-@dataclass
-class VideoResult:
-    """Everything one video produced."""
-
-    video: int
-    predictions: list[Prediction] = field(default_factory=list)
-    track_rows: list[TrackRow] = field(default_factory=list)
-    target_members: list[str] = field(default_factory=list)
-    counts: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -351,8 +316,8 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
 
     For each video of ``frames``: the camera is calibrated
     (``vessel_tools.calib.calibration.calibrate_from_labels``), the distance model fitted and the cue noise
-    measured (itself leave-one-out) on the labelled training videos other than this one; the rest of ``config.settings`` is kept. Used to fit the error model on scores the
-    calibration has not seen.
+    measured (itself leave-one-out) on the labelled training videos other than this one; the rest of
+    ``config.settings`` is kept. Used to fit the error model on scores the calibration has not seen.
     """
     by_video: dict[int, list[DetectionFrame]] = defaultdict(list)
     for frame in frames:
@@ -367,67 +332,6 @@ def leave_one_video_out(dataset, frames: list[DetectionFrame], train_videos: lis
                                                                                 water_level=config.water_level))
         results.append(run_video(by_video[video], camera, dataclasses.replace(config, settings=settings)))
     return results
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Outputs
-
-
-def write_predictions_csv(path: Path, results: list[VideoResult]) -> None:
-    """``video,t_utc_s,lat,lon`` for the vessel of interest."""
-    lines = [PREDICTION_HEADER]
-    for result in results:
-        lines += [prediction_line(p.video, p.stamp, p.lat, p.lon) for p in result.predictions]
-    atomic_lines(Path(path), lines)
-
-
-TRACK_COLUMNS = ("video,frame,t_utc_s,track_id,status,is_target,score,confidence,updated,has_world,x_east_m,"
-                 "y_north_m,lat,lon,distance_m,bearing_deg,expected_error_m,measured_x_m,measured_y_m")
-
-
-def write_tracks_csv(path: Path, results: list[VideoResult]) -> None:
-    """Every track in every frame, with its filtered position and this frame's fused measurement."""
-    lines = [TRACK_COLUMNS]
-
-    def num(value, spec=".3f"):
-        return format(value, spec) if value is not None and math.isfinite(value) else ""
-
-    for result in results:
-        for row in result.track_rows:
-            wt = row.world
-            mx, my = (wt.measured_position if wt.measured_position is not None else (math.nan, math.nan))
-            lines.append(",".join([
-                str(row.video), str(row.frame), f"{seconds_of_day(row.stamp):.3f}", wt.screen.track_id,
-                str(int(wt.screen.status)), str(int(wt.is_target)), num(wt.score), num(wt.screen.confidence),
-                str(int(wt.screen.updated)), str(int(wt.has_world)), num(wt.position[0]), num(wt.position[1]),
-                num(wt.latitude, ".8f"), num(wt.longitude, ".8f"), num(wt.distance_m), num(wt.bearing_deg, ".2f"),
-                num(wt.expected_error_m), num(mx), num(my)]))
-    atomic_lines(Path(path), lines)
-
-
-def write_target_measurement_csvs(folder: Path, results: list[VideoResult], camera_lat: float,
-                                  camera_lon: float) -> tuple[Path, Path]:
-    """The online target's own boxes back-projected, and what the filter published, in the same frames.
-
-    ``target_measured.csv``: the target's fused measurement in each frame that has one (its box back-projected,
-    no filter); ``target_filtered.csv``: the filter's position in those frames. Scored side by side they say
-    whether the filter improves on the very boxes it was given.
-    """
-    measured, filtered = [PREDICTION_HEADER], [PREDICTION_HEADER]
-    for result in results:
-        for row in result.track_rows:
-            wt = row.world
-            if not (wt.is_target and wt.has_world and wt.measured_position is not None):
-                continue
-            if not np.all(np.isfinite(wt.measured_position)):
-                continue
-            lat, lon = geodesy.local_to_gps(wt.measured_position[0], wt.measured_position[1], camera_lat, camera_lon)
-            measured.append(prediction_line(row.video, row.stamp, lat, lon))
-            filtered.append(prediction_line(row.video, row.stamp, wt.latitude, wt.longitude))
-    paths = (Path(folder) / "target_measured.csv", Path(folder) / "target_filtered.csv")
-    atomic_lines(paths[0], measured)
-    atomic_lines(paths[1], filtered)
-    return paths
 
 
 def _filter_against_its_boxes(out: Path, results: list[VideoResult], camera, dataset, videos) -> str:

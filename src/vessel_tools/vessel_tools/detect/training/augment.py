@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vessel_detect.detector import LETTERBOX_PAD_VALUE, horizon_band_top, letterbox
+from vessel_detect.detector import horizon_band_top
+from vessel_detect.network_input import LETTERBOX_PAD_VALUE, letterbox
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,28 @@
+"""The names this project's bags use: topics, message types, NavSatFix constants, and the hint for a bad bag.
+
+Plain strings and numbers, importable without ROS or rosbags.
+"""
+
+from __future__ import annotations
+
+DEFAULT_IMAGE_TOPIC = "/camera/image_raw/compressed"
+DEFAULT_CAMERA_FIX_TOPIC = "/camera/fix"
+DEFAULT_GPS_TRUTH_TOPIC = "/vessel/gps_truth"
+
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+IMAGE = "sensor_msgs/msg/Image"
+NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
+CLOCK = "rosgraph_msgs/msg/Clock"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+DETECTION_2D_ARRAY = "vessel_msgs/msg/Detection2DArray"
+VESSEL_TRACK_ARRAY = "vessel_msgs/msg/VesselTrackArray"
+
+# sensor_msgs/NavSatStatus and NavSatFix constants (kept here so callers need no message classes).
+STATUS_NO_FIX = -1
+STATUS_FIX = 0
+SERVICE_GPS = 1
+COVARIANCE_TYPE_UNKNOWN = 0
+COVARIANCE_TYPE_APPROXIMATED = 1
+COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
+
+BUILD_HINT = "rebuild it with `./vessel bag build` (or `bag_build`)"
