@@ -108,22 +108,22 @@ def test_demo_feeds_the_hand_labels_through_the_graph_without_losing_one(data_di
 
 def test_a_recording_whose_recorder_died_is_recovered_and_kept(tmp_path):
     """The demo used to abort with no output at all when the recorder was killed with -9."""
-    from vessel_detect import bag_io
+    from vessel_detect import bag_messages, bag_reader, bag_topics, bag_writer
     from vessel_fixtures import detect_synthetic as synthetic
     from vessel_tools.demo import VideoRun, readable_recording
 
     recording = tmp_path / "video_13"
-    writer = bag_io.BagWriter(recording, atomic=False).open()
-    writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+    writer = bag_writer.BagWriter(recording, atomic=False).open()
+    writer.add_topic(bag_topics.DEFAULT_IMAGE_TOPIC, bag_topics.COMPRESSED_IMAGE, "sensor_data")
     for k in range(5):
-        writer.write(bag_io.DEFAULT_IMAGE_TOPIC,
-                     bag_io.compressed_image(1_601_494_000_000_000_000 + k * 40_000_000, synthetic.frame_jpeg(k)))
+        writer.write(bag_topics.DEFAULT_IMAGE_TOPIC,
+                     bag_messages.compressed_image(1_601_494_000_000_000_000 + k * 40_000_000, synthetic.frame_jpeg(k)))
     writer.flush()  # what the recorder does every flush_period_s; then it is killed: no summary, no metadata.yaml
     messages: list[str] = []
     run = VideoRun(13, 36, 5, 1.0, recording, {"recorder": -9}, ("recorder",))
     assert readable_recording(run, messages.append)
     assert any("5 messages recovered" in m for m in messages), messages
-    with bag_io.BagReader(recording) as reader:
+    with bag_reader.BagReader(recording) as reader:
         assert reader.message_count() == 5
     nothing = VideoRun(14, 36, 0, 1.0, tmp_path / "video_14", {}, ("recorder",))
     (tmp_path / "video_14").mkdir()

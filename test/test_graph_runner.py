@@ -18,7 +18,7 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
     Started with the others, the first frames' detections went out before the tracker (or the fuser, or the GPS
     publisher) had matched its publisher: 24-28 fixes for 36 images, none counted.
     """
-    from vessel_detect.bag_io import BagReader
+    from vessel_detect.bag_reader import BagReader
 
     bags = tmp_path / "bags"
     build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
@@ -54,7 +54,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
     import signal
     import time
 
-    from vessel_detect.bag_io import BagReader
+    from vessel_detect.bag_reader import BagReader
 
     bags = tmp_path / "bags"
     build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
@@ -96,7 +96,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
         # Lost around the promotion: at most the frame in flight. Frames lost before the first one recorded are the
         # start-up's, not this: the CI's load once lost the first two, and once the first three, which the camera
         # sent before the detector had matched (the graph now holds its first frame for the detector).
-        from vessel_detect.bag_io import ns_of_stamp
+        from vessel_detect.bag_messages import ns_of_stamp
 
         with BagReader(recording) as reader:
             recorded = {ns_of_stamp(m.header.stamp) for _, m in reader.read_topic("/vessel/tracks")}

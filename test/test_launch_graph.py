@@ -47,7 +47,7 @@ def test_the_readme_launch_line_publishes_fixes_at_the_rate_given(managed, ros_e
     import rclpy
     from sensor_msgs.msg import NavSatFix
 
-    from vessel_common.node_support import reliable_qos
+    from vessel_common.qos import reliable_qos
 
     repo = __import__("pathlib").Path(__file__).resolve().parents[1]
     log = open(tmp_path / "launch.log", "w")

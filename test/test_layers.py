@@ -34,6 +34,7 @@ ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_in
 _BY_LAYER = {
     "common": """vessel_common vessel_common.errors vessel_common.imports vessel_common.paths vessel_common.state_file
                  vessel_common.command_line vessel_common.parameter_names vessel_common.parameter_table
+                 vessel_common.ros_arguments
                  vessel_calib vessel_calib.geodesy
                  vessel_detect vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.calibration_parameters vessel_calib.params vessel_calib.gps_track
@@ -42,12 +43,15 @@ _BY_LAYER = {
                vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
                vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
                vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing
-               vessel_detect.class_names vessel_detect.network_input
+               vessel_detect.class_names vessel_detect.network_input vessel_detect.bag_topics
                vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings vessel_track.parameter_tables vessel_track.message_checks""",
-    "ros": """vessel_common.node_support vessel_common.node_parameters vessel_calib.camera_parameters
-              vessel_detect.bag_io vessel_detect.ros_messages vessel_detect.sources vessel_track.node_params""",
+    "ros": """vessel_common.qos vessel_common.health vessel_common.parameter_declaration vessel_common.node_state
+              vessel_common.lifecycle vessel_common.run vessel_common.node_parameters vessel_calib.camera_parameters
+              vessel_detect.bag_messages vessel_detect.bag_writer vessel_detect.bag_reader vessel_detect.bag_salvage
+              vessel_detect.ros_messages vessel_detect.image_source vessel_detect.file_sources
+              vessel_detect.live_sources vessel_detect.source_spec vessel_track.node_params""",
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
                 vessel_track.gps_publisher_node""",

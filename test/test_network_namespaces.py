@@ -48,7 +48,7 @@ def namespaces():
 
 
 def _fixes(recording) -> list[tuple[int, float, float, int]]:
-    from vessel_detect.bag_io import BagReader
+    from vessel_detect.bag_reader import BagReader
 
     with BagReader(recording) as reader:
         return [(m.log_time_ns, fix.latitude, fix.longitude, fix.status.status)

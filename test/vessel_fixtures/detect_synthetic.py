@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vessel_detect import bag_io
+from vessel_detect import bag_messages, bag_topics, bag_writer
 
 CAMERA_LAT = 32.70297
 CAMERA_LON = -117.234631
@@ -130,21 +130,21 @@ def write_bag(
     *,
     bad_frames: tuple[int, ...] = (),
     with_fixes: bool = True,
-    image_topic: str = bag_io.DEFAULT_IMAGE_TOPIC,
+    image_topic: str = bag_topics.DEFAULT_IMAGE_TOPIC,
 ) -> list[int]:
     """A bag like `bag_build` makes, with `frames` images `frame_step_s` apart; returns the image stamps (ns).
 
     Frames listed in `bad_frames` hold bytes that are not a JPEG (a truncated one), to exercise skipping.
     """
-    stamps = [bag_io.sec_to_ns(start_utc + k * frame_step_s) for k in range(frames)]
-    with bag_io.BagWriter(path) as writer:
-        writer.add_topic(image_topic, bag_io.COMPRESSED_IMAGE, "sensor_data")
+    stamps = [bag_messages.sec_to_ns(start_utc + k * frame_step_s) for k in range(frames)]
+    with bag_writer.BagWriter(path) as writer:
+        writer.add_topic(image_topic, bag_topics.COMPRESSED_IMAGE, "sensor_data")
         if with_fixes:
-            writer.add_topic(bag_io.DEFAULT_CAMERA_FIX_TOPIC, bag_io.NAV_SAT_FIX, "latched")
-            writer.add_topic(bag_io.DEFAULT_GPS_TRUTH_TOPIC, bag_io.NAV_SAT_FIX, "reliable")
+            writer.add_topic(bag_topics.DEFAULT_CAMERA_FIX_TOPIC, bag_topics.NAV_SAT_FIX, "latched")
+            writer.add_topic(bag_topics.DEFAULT_GPS_TRUTH_TOPIC, bag_topics.NAV_SAT_FIX, "reliable")
             writer.write(
-                bag_io.DEFAULT_CAMERA_FIX_TOPIC,
-                bag_io.nav_sat_fix(stamps[0], CAMERA_LAT, CAMERA_LON, frame_id="camera"),
+                bag_topics.DEFAULT_CAMERA_FIX_TOPIC,
+                bag_messages.nav_sat_fix(stamps[0], CAMERA_LAT, CAMERA_LON, frame_id="camera"),
             )
         for k, stamp in enumerate(stamps):
             data = frame_jpeg(k)
@@ -152,8 +152,9 @@ def write_bag(
                 data = data[: len(data) // 2]
             if with_fixes:
                 lat, lon = vessel_position(k * frame_step_s)
-                writer.write(bag_io.DEFAULT_GPS_TRUTH_TOPIC, bag_io.nav_sat_fix(stamp, lat, lon, frame_id="vessel"))
-            writer.write(image_topic, bag_io.compressed_image(stamp, data))
+                writer.write(bag_topics.DEFAULT_GPS_TRUTH_TOPIC,
+                             bag_messages.nav_sat_fix(stamp, lat, lon, frame_id="vessel"))
+            writer.write(image_topic, bag_messages.compressed_image(stamp, data))
     return stamps
 
 

@@ -3,11 +3,19 @@
 Arguments: ``params_file`` (graph parameters), ``calib_file`` (calibration written by ``calibrate``),
 ``source`` (camera source: bag folder, .mcap, video, image folder or device:N), ``rate`` (replay rate, 0 = as
 fast as the graph consumes), ``use_sim_time`` (``auto``: true when the source is a recording, whose stamps are
-the graph's time, false for a live device), ``respawn`` (restart a node that dies, half a second later, at most
-five times; the tracker and the fuser then keep a state file, so a restarted one carries on), ``managed`` (the
-camera and the detector as lifecycle nodes, configured and activated by this launch: ``camera_managed``,
-``detector_managed``). The node list is
-``vessel_bringup.graph_nodes.GRAPH_NODES``, the same one ``./vessel graph`` starts on a pip-only install.
+the graph's time, false for a live device), ``record`` (also record the graph's outputs into this bag folder, as
+``./vessel graph --record`` does), ``respawn`` (restart a node that fails, as ``./vessel graph --respawn`` does:
+see below), ``managed`` (the camera and the detector as lifecycle nodes, configured and activated by this launch:
+``camera_managed``, ``detector_managed``). The node list is ``vessel_bringup.graph_nodes.GRAPH_NODES`` (and its
+``RECORDER``), the same one ``./vessel graph`` starts on a pip-only install.
+
+``respawn:=true`` treats every node as ``./vessel graph --respawn`` does (``graph_nodes``): a node that exits with
+a non-zero status (killed, crashed) is restarted at once, then after 0.5 s doubling to 8 s; one that failed
+``MAX_RESTARTS`` times is left down and the launch stops. A node that exits with 0 (the camera at the end of its
+source) is not restarted. The tracker and the fuser keep a state file and carry on from their tracks, the camera
+a resume file and carries on after the last frame it sent, the recorder a resume file and continues into the next
+part of the recording (``RECORD.1``, ...), all in a state folder that lives as long as the launch
+(``graph_nodes.respawn_files``).
 
 The per-run values go on each node's command line as ``-p name:=value``: launch_ros would write them into a
 ``/**`` block, which the node's own block of ``params_file`` beats, so ``source:=`` and ``rate:=`` would be
@@ -17,30 +25,43 @@ its images (``wait_for_subscribers:=1``, unless the parameter files set another 
 ``./vessel graph`` does: a replay does not send its first frames to no one.
 """
 
+import functools
 import shutil
 import tempfile
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import (
+    DeclareLaunchArgument,
+    LogInfo,
+    OpaqueFunction,
+    RegisterEventHandler,
+    Shutdown,
+    TimerAction,
+)
+from launch.event_handlers import OnProcessExit, OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from vessel_bringup.graph_nodes import (
     GRAPH_NODES,
     MAX_RESTARTS,
-    STATEFUL_NODES,
+    RECORDER,
     camera_command_line,
     camera_waits_for_detector,
     file_parameters,
+    respawn_files,
+    restart_delay_s,
+    restart_wanted,
     sim_time_for_source,
 )
 from vessel_common.errors import VesselError
 
+ARGUMENTS = ("params_file", "calib_file", "source", "rate", "use_sim_time", "record", "respawn", "managed")
+
 
 def _nodes(context):
-    values = {name: LaunchConfiguration(name).perform(context) for name in
-              ("params_file", "calib_file", "source", "rate", "use_sim_time", "respawn", "managed")}
+    values = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     for key in ("params_file", "calib_file"):
         if not Path(values[key]).is_file():
             raise RuntimeError(f"{key}:={values[key]} is not a file: give the graph's parameter file (e.g. "
@@ -55,48 +76,92 @@ def _nodes(context):
         values["use_sim_time"].lower() == "true"
     respawn = values["respawn"].lower() == "true"
     state_dir = Path(tempfile.mkdtemp(prefix="vessel_graph_state_")) if respawn else None
-    nodes = []
-    for graph_node in GRAPH_NODES:
+    entities = []
+    for graph_node in GRAPH_NODES + ((RECORDER,) if values["record"].strip() else ()):
         ros_arguments = ["-p", f"use_sim_time:={'true' if use_sim_time else 'false'}"]
-        if graph_node.name == "camera":
-            ros_arguments += camera_command_line(values["source"], values["rate"])
-            rate = {"rate": values["rate"]} if values["rate"].strip() else {}
-            try:
-                waits = camera_waits_for_detector(
-                    file_parameters([values["params_file"], values["calib_file"]], "camera"), rate, local_detector=True)
-            except VesselError as error:
-                raise RuntimeError(str(error)) from None
-            ros_arguments += [arg for name, value in waits.items() for arg in ("-p", f"{name}:={value}")]
-        if state_dir is not None and graph_node.name in STATEFUL_NODES:
-            ros_arguments += ["-p", f"state_file:={state_dir / (graph_node.name + '.state')}"]
+        ros_arguments += _per_run_arguments(graph_node.name, values)
+        if state_dir is not None:
+            ros_arguments += _assignments(respawn_files(graph_node.name, state_dir))
         common = dict(package=graph_node.package, name=graph_node.name,
                       parameters=[values["params_file"], values["calib_file"]], ros_arguments=ros_arguments,
-                      respawn=respawn and graph_node.name != "camera", respawn_delay=0.5,
-                      respawn_max_retries=MAX_RESTARTS, output="screen",
-                      emulate_tty=True)
-        if graph_node.name in ("camera", "detector") and values["managed"].lower() == "true":
-            nodes += _managed(graph_node.executable + "_managed", common)
-        else:
-            nodes.append(Node(executable=graph_node.executable, **common))
+                      output="screen", emulate_tty=True)
+        managed = graph_node.name in ("camera", "detector") and values["managed"].lower() == "true"
+        make = functools.partial(_managed if managed else _plain, graph_node.executable, common)
+        entities += _respawning(make, graph_node.name) if respawn else make()
     if state_dir is not None:  # the state files live as long as the launch
-        from launch.actions import RegisterEventHandler
-        from launch.event_handlers import OnShutdown
-
-        nodes.append(RegisterEventHandler(OnShutdown(on_shutdown=[
+        entities.append(RegisterEventHandler(OnShutdown(on_shutdown=[
             OpaqueFunction(function=lambda _context: shutil.rmtree(state_dir, ignore_errors=True))])))
-    return nodes
+    return entities
+
+
+def _assignments(parameters: dict) -> list[str]:
+    return [arg for name, value in parameters.items() for arg in ("-p", f"{name}:={value}")]
+
+
+def _per_run_arguments(name: str, values: dict) -> list[str]:
+    """``-p`` assignments of a node's per-run values: the camera's source and rate, the recorder's output."""
+    if name == RECORDER.name:
+        return _assignments({"output": values["record"].strip()})
+    if name != "camera":
+        return []
+    rate = {"rate": values["rate"]} if values["rate"].strip() else {}
+    try:
+        waits = camera_waits_for_detector(
+            file_parameters([values["params_file"], values["calib_file"]], "camera"), rate, local_detector=True)
+    except VesselError as error:
+        raise RuntimeError(str(error)) from None
+    return camera_command_line(values["source"], values["rate"]) + _assignments(waits)
+
+
+def _respawning(make, name: str, restarts: int = 0) -> list:
+    """The node's entities (``make()``, the node first), restarted as ``./vessel graph --respawn`` restarts one.
+
+    On a non-zero exit (``restart_wanted``) a new node like it starts after ``restart_delay_s``; after
+    ``MAX_RESTARTS`` restarts the launch stops instead. A node that exits with 0, or at shutdown, stays down.
+    """
+    entities = make()
+    node = entities[0]
+
+    def on_exit(event, context):
+        status = event.returncode
+        if context.is_shutdown or not restart_wanted(status):
+            return None
+        if restarts >= MAX_RESTARTS:
+            return [LogInfo(msg=f"[graph] {name} failed {restarts + 1} times (exit {status}): not restarted again; "
+                                "stopping the launch, see its output"),
+                    Shutdown(reason=f"{name} failed {restarts + 1} times")]
+        _forget_node_name(context, node)
+        delay = restart_delay_s(restarts)
+        again = _respawning(make, name, restarts + 1)
+        return [LogInfo(msg=f"[graph] {name} exited with status {status}: restarting it (restart {restarts + 1} "
+                            f"of at most {MAX_RESTARTS})"),
+                *(again if delay == 0.0 else [TimerAction(period=delay, actions=again)])]
+
+    return [RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit)), *entities]
+
+
+def _forget_node_name(context, node) -> None:
+    """launch_ros counts the node names it started and warns of a second one: a restart is the same node."""
+    try:
+        context.locals.unique_ros_node_names[node.node_name] -= 1
+    except (AttributeError, KeyError, RuntimeError):  # another launch_ros: its warning is all that happens
+        pass
+
+
+def _plain(executable: str, common: dict) -> list:
+    return [Node(executable=executable, **common)]
 
 
 def _managed(executable: str, common: dict) -> list:
     """A lifecycle node and the events that configure it, then activate it once it is inactive."""
-    from launch.actions import EmitEvent, RegisterEventHandler
+    from launch.actions import EmitEvent
     from launch.events import matches_action
     from launch_ros.actions import LifecycleNode
     from launch_ros.event_handlers import OnStateTransition
     from launch_ros.events.lifecycle import ChangeState
     from lifecycle_msgs.msg import Transition
 
-    node = LifecycleNode(executable=executable, namespace="", **common)
+    node = LifecycleNode(executable=executable + "_managed", namespace="", **common)
 
     def transition(transition_id):
         return EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id))
@@ -118,11 +183,16 @@ def generate_launch_description():
         DeclareLaunchArgument("use_sim_time", default_value="auto",
                               description="follow /clock from the camera: true, false or auto (true for a "
                                           "recording, false for a live device)"),
+        DeclareLaunchArgument("record", default_value="",
+                              description="also record the graph's outputs into this bag folder (recorder node); "
+                                          "'': no recording"),
         DeclareLaunchArgument("managed", default_value="false",
                               description="run the camera and the detector as lifecycle nodes that this launch "
                                           "configures and activates (lifecycle services under /camera, /detector)"),
         DeclareLaunchArgument("respawn", default_value="false",
-                              description="restart a node (all but the camera) half a second after it dies, at most "
-                                          "five times; the tracker and fuser resume from a state file"),
+                              description="restart a node that fails, at once, then after 0.5 s doubling to 8 s, at "
+                                          "most five times (then the launch stops); the tracker and the fuser resume "
+                                          "from a state file, the camera after its last frame, the recorder into "
+                                          "RECORD.1, ..."),
         OpaqueFunction(function=_nodes),
     ])

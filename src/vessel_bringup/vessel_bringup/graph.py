@@ -26,11 +26,12 @@ from vessel_bringup.graph_nodes import (
     MAX_RESTARTS,
     RECORDER,
     STANDBY_NODES,
-    STATEFUL_NODES,
     GraphNode,
     camera_waits_for_detector,
     file_parameters,
+    respawn_files,
     restart_delay_s,
+    restart_wanted,
     sim_time_for_source,
 )
 from vessel_bringup.graph_watcher import GraphWatcher
@@ -215,11 +216,15 @@ class GraphRunner:
         old.restarts += 1
         return self.start(old.node, old.parameters, append_log=True)
 
-    def state_file(self, name: str) -> Path:
-        """Where a node keeps its ``state_file`` for this run (removed first: a new run starts cold)."""
-        path = self._overrides_dir() / f"{name}.state"
-        remove_state_file(path)
-        return path
+    def respawn_files(self, name: str, state_files: bool = True) -> dict[str, str]:
+        """The state and resume files node ``name`` keeps under respawn (``graph_nodes.respawn_files``) as parameters.
+
+        They are in the folder of the overrides, and removed first: a new run starts from the beginning.
+        """
+        files = respawn_files(name, self._overrides_dir(), state_files)
+        for path in files.values():
+            remove_state_file(Path(path))
+        return files
 
     def _overrides_dir(self) -> Path:
         if self.log_dir is not None:
@@ -230,8 +235,9 @@ class GraphRunner:
         return self._temp_dir
 
     def failed(self) -> list[str]:
-        """Names of nodes that exited with a non-zero status."""
-        return [name for name, r in self.running.items() if r.process.poll() not in (None, 0)]
+        """Names of nodes that exited with a non-zero status (``graph_nodes.restart_wanted``)."""
+        return [name for name, r in self.running.items()
+                if r.process.poll() is not None and restart_wanted(r.process.returncode)]
 
     def wait(self, name: str, timeout_s: float | None = None) -> int | None:
         """Wait for one node to exit; its status, or None on time-out."""
@@ -414,9 +420,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="use_sim_time of every node: auto (default) follows the replay's /clock for a recorded "
                         "source (bag, video, folder), so messages, /diagnostics and a --record are all in its time")
     parser.add_argument("--respawn", action="store_true",
-                        help="restart a node that dies (at once, then after 0.5 s doubling to 8 s, at most 5 "
+                        help="restart a node that fails (at once, then after 0.5 s doubling to 8 s, at most 5 "
                         "times), as respawn:=true does for ros2 launch; the tracker and the fuser keep a state "
-                        "file, so a restarted one carries on from its tracks")
+                        "file, so a restarted one carries on from its tracks, the camera carries on after the last "
+                        "frame it sent, the recorder into the next part of --record (RECORD.1, ...)")
     parser.add_argument("--hot-standby", action="store_true",
                         help="with --respawn: run a spare tracker, fuser and GPS publisher that process every message "
                         "without publishing, and promote one at once when its node dies (no start-up, no "
@@ -436,13 +443,16 @@ def _start_consumers(args: argparse.Namespace, runner: GraphRunner, wanted: list
     """Start the recorder and every wanted node but the camera, consumers first, with their hot standbys."""
     known = {node.name: node for node in GRAPH_NODES}
     if args.record is not None:
-        runner.start(RECORDER, {"output": str(args.record), "use_sim_time": sim_time})
+        overrides = {"output": str(args.record), "use_sim_time": sim_time}
+        if args.respawn:  # a restarted recorder continues into the next part, RECORD.1, ...
+            overrides.update(runner.respawn_files(RECORDER.name))
+        runner.start(RECORDER, overrides)
     for name in reversed(wanted):  # consumers first, so nothing the camera sends is missed
         if name == "camera":
             continue
         overrides = {"use_sim_time": sim_time}
-        if args.respawn and not args.no_state_files and name in STATEFUL_NODES:
-            overrides["state_file"] = str(runner.state_file(name))
+        if args.respawn:
+            overrides.update(runner.respawn_files(name, state_files=not args.no_state_files))
         runner.start(known[name], overrides)
         print(f"[graph] started {name}: {known[name].role}", file=sys.stderr)
         if args.hot_standby and name in STANDBY_NODES:
@@ -480,8 +490,17 @@ def _start_camera(args: argparse.Namespace, runner: GraphRunner, wanted: list[st
         overrides["rate"] = args.rate
     overrides.update(camera_waits_for_detector(runner.file_parameters("camera"), overrides,
                                                "detector" in wanted and not args.no_wait))
+    if args.respawn:  # a restarted camera carries on after the last frame it sent
+        overrides.update(runner.respawn_files(camera.name))
     runner.start(camera, overrides)
     print(f"[graph] started camera: {camera.role}", file=sys.stderr)
+
+
+def _source_ended(runner: GraphRunner, respawn: bool) -> bool:
+    """Whether the camera exited at the end of its source: under respawn only with status 0 (else it is restarted)."""
+    camera = runner.running.get("camera")
+    status = camera.process.poll() if camera is not None else None
+    return status is not None and not (respawn and restart_wanted(status))
 
 
 def _run_until_stopped(args: argparse.Namespace, runner: GraphRunner, stop_requested: StopRequest) -> None:
@@ -490,7 +509,7 @@ def _run_until_stopped(args: argparse.Namespace, runner: GraphRunner, stop_reque
     spare_failures: dict[str, int] = {}
     while not stop_requested.is_set():
         time.sleep(0.2)
-        if args.exit_at_end and "camera" in runner.running and runner.running["camera"].process.poll() is not None:
+        if args.exit_at_end and _source_ended(runner, args.respawn):
             print("[graph] camera source ended", file=sys.stderr)
             time.sleep(2.0)
             break
@@ -505,6 +524,18 @@ def _run_until_stopped(args: argparse.Namespace, runner: GraphRunner, stop_reque
             break
     if stop_requested.is_set():
         print(f"[graph] {signal.Signals(stop_requested.signal).name}: stopping every node", file=sys.stderr)
+
+
+def _say_recording_parts(record: Path | None) -> None:
+    """Name the parts of a recording that a restarted recorder continued (``resume_files.recording_parts``)."""
+    if record is None:
+        return
+    from vessel_detect.resume_files import recording_parts
+
+    parts = recording_parts(record)
+    if len(parts) > 1:
+        print(f"[graph] the recording is in {len(parts)} bags, a restarted recorder continuing into the later ones: "
+              + ", ".join(map(str, parts)), file=sys.stderr)
 
 
 @command_line_tool
@@ -522,7 +553,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise VesselError(f"unknown node(s) {unknown}: choose from {sorted(known)}")
         runner = GraphRunner(params, log_dir=args.log_dir, echo=True)
         if "camera" in wanted:  # before any node starts: the camera would fail only after the graph connected
-            from vessel_detect.sources import check_source
+            from vessel_detect.source_spec import check_source
 
             check_source(args.source or str(runner.file_parameters("camera").get("source") or ""))
         stop_requested.install()
@@ -537,6 +568,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _run_until_stopped(args, runner, stop_requested)
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)
+        _say_recording_parts(args.record)
         return 0 if all(code == 0 for name, code in statuses.items() if not name.endswith("(standby)")) else 1
     except (VesselError, KeyboardInterrupt, OSError):
         if runner is not None:  # never leave started nodes behind

@@ -99,11 +99,38 @@ def camera_waits_for_detector(camera_file_values: dict[str, object], overrides: 
 STATEFUL_NODES = ("tracker", "fuser")
 """Nodes that keep a ``state_file`` under ``--respawn``, so that a restarted one carries on from its tracks."""
 
+RESUMING_NODES = ("camera", "recorder")
+"""Nodes that keep a ``resume_file`` under ``--respawn``: a restarted camera carries on after the last frame it sent
+(not from the first), a restarted recorder into the next part of its recording (``OUT.1``, not failing on ``OUT``)."""
+
+
+def respawn_files(name: str, state_dir: Path, state_files: bool = True) -> dict[str, str]:
+    """The files node ``name`` keeps under respawn in the run's state folder, as parameters: ``{parameter: path}``.
+
+    The tracker and the fuser a ``state_file`` (unless ``state_files`` is false: they restart cold), the camera and
+    the recorder a ``resume_file``; the other nodes none. Both runners (the launch file, ``./vessel graph``) use it.
+    """
+    files = {}
+    if state_files and name in STATEFUL_NODES:
+        files["state_file"] = str(Path(state_dir) / f"{name}.state")
+    if name in RESUMING_NODES:
+        files["resume_file"] = str(Path(state_dir) / f"{name}.resume")
+    return files
+
+
 STANDBY_NODES = ("tracker", "fuser", "gps_publisher")
 """Nodes with a ``standby`` parameter, which ``./vessel graph --hot-standby`` runs a spare of."""
 
 MAX_RESTARTS = 5
 """A node restarted this many times is left down and the graph stops: it fails for a reason a restart cannot fix."""
+
+
+def restart_wanted(status: int) -> bool:
+    """Whether a node that exited with ``status`` is restarted under respawn: when it failed.
+
+    The camera at the end of its source, and a node stopped by Ctrl-C, exit 0: they are not restarted.
+    """
+    return status != 0
 
 
 def restart_delay_s(restarts: int) -> float:

@@ -102,7 +102,7 @@ class GraphWatcher:
         from rclpy.signals import SignalHandlerOptions
         from sensor_msgs.msg import CompressedImage, NavSatFix
 
-        from vessel_common.node_support import SENSOR_DATA_QOS, reliable_qos
+        from vessel_common.qos import SENSOR_DATA_QOS, reliable_qos
         from vessel_msgs.msg import Detection2DArray, VesselTrackArray
 
         self._rclpy = rclpy
@@ -155,7 +155,7 @@ class GraphWatcher:
             self.log.add(FIX_TOPIC, stamp.sec * 1_000_000_000 + stamp.nanosec, published, received)
 
     def _on_diagnostics(self, array) -> None:
-        from vessel_common.node_support import matched_subscribers
+        from vessel_common.health import matched_subscribers
 
         self.matched.update(matched_subscribers(array, root_namespace_only=True))
         for status in array.status:

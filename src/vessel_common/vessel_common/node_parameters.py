@@ -15,7 +15,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from vessel_common.errors import VesselError
-from vessel_common.node_support import declare_parameter
+from vessel_common.parameter_declaration import declare_parameter
 from vessel_common.parameter_table import READ_ONLY_HINT, ParameterTable
 
 ApplyChanges = Callable[[dict[str, Any]], None]

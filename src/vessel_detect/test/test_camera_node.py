@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from vessel_detect import bag_io
+from vessel_detect import bag_messages, bag_reader, bag_salvage, bag_topics, bag_writer
 from vessel_fixtures import detect_synthetic as synthetic
 
 pytestmark = pytest.mark.ros
@@ -47,7 +47,7 @@ class Probe:
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.ack_pub = self.node.create_publisher(Detection2DArray, "/vessel/detections", 10) if ack else None
-        self.node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, self._on_image,
+        self.node.create_subscription(CompressedImage, bag_topics.DEFAULT_IMAGE_TOPIC, self._on_image,
                                       qos_profile_sensor_data)
         self.node.create_subscription(Clock, "/clock", lambda m: self.clock.append(stamp(m.clock)), reliable)
         self.node.create_subscription(NavSatFix, "/camera/fix", self.fixes.append, latched)
@@ -211,6 +211,68 @@ def test_ack_timeout_keeps_going_without_a_detector_and_max_frames(tmp_path, rep
     assert len(probe.fixes) == 1  # no fix in the bag: published from the camera.* parameters
 
 
+def _resumed_stamp(resume_file: Path) -> int | None:
+    """The stamp of the last item the camera noted in its resume file (None before the first)."""
+    import json
+
+    try:
+        return json.loads(resume_file.read_text())["position"]["stamp_ns"]
+    except FileNotFoundError:
+        return None
+
+
+@pytest.mark.parametrize("kind", ["bag", "folder"])
+def test_a_restarted_camera_carries_on_after_the_last_frame_it_sent(tmp_path, ros_env, ros_context, kind):
+    """Respawned, the camera replayed from frame 0: every frame again, the graph's tracker reset by stamps going back.
+
+    Killed with -9 while it waits for frame 3's detections (rate 0), the camera started again with the same
+    ``resume_file`` sends frame 4 on: every frame once, in order, /clock never back, each GPS truth message once, the
+    latched camera fix again. A folder without stamps in its names is stamped from the first start's time again.
+    """
+    if kind == "bag":
+        source = tmp_path / "bag"
+        stamps = synthetic.write_bag(source, frames=8, frame_step_s=4.0)
+    else:
+        source = tmp_path / "frames"
+        source.mkdir()
+        for k in range(8):
+            (source / f"{k:05d}.jpg").write_bytes(synthetic.frame_jpeg(k))
+    resume_file = tmp_path / "state" / "camera.resume"
+    params = (f"source:={source}", "rate:=0.0", "ack_timeout_s:=60.0", "wait_for_subscribers:=-1", "fps:=1.0",
+              "end_linger_s:=0.5", f"resume_file:={resume_file}")
+    probe = Probe(ros_context, ack=True, unanswered=frozenset({3}))  # frame 3's detections never come
+    first = start_camera(ros_env, *params)
+    second = None
+    try:
+        deadline = time.monotonic() + 60
+        while not (len(probe.images) == 4 and _resumed_stamp(resume_file) == probe.images[3][0]):
+            assert time.monotonic() < deadline and first.poll() is None, first.stdout.read() if first.poll() else ""
+            probe.executor.spin_once(timeout_sec=0.05)
+        first.kill()  # while it waits for frame 3's detections
+        first.wait()
+        second = start_camera(ros_env, *params)
+        probe.spin_while(second, 60)
+        output = second.stdout.read()
+    finally:
+        for process in (first, second):
+            if process is not None and process.poll() is None:
+                process.kill()
+                process.wait()
+        probe.close()
+    assert second.returncode == 0, output
+    sent = [s for s, _ in probe.images]
+    assert [b for _, b in probe.images] == [synthetic.frame_jpeg(k) for k in range(8)], output  # each once, in order
+    if kind == "bag":
+        assert sent == stamps
+        assert [stamp(f.header.stamp) for f in probe.truth] == stamps  # frame 3's, sent before it, not again
+    else:  # the same stamps as one run would give: 1 s apart from the first start's time
+        assert [b - a for a, b in zip(sent, sent[1:])] == [1_000_000_000] * 7
+    assert probe.clock == sorted(probe.clock) and set(sent) <= set(probe.clock)
+    assert len(probe.fixes) == 2  # the latched camera fix, from each camera
+    assert "carrying on after the item stamped" in output and "4 frames were sent before the restart" in output
+    assert "sent 4 frames" in output and "carried on after a restart (4 frames sent before it)" in output
+
+
 def test_bad_source_exits_with_one_error_line(tmp_path, ros_env):
     process = start_camera(ros_env, f"source:={tmp_path / 'missing'}")
     output, _ = process.communicate(timeout=60)
@@ -222,15 +284,15 @@ def test_a_bag_cut_short_plays_what_it_holds_says_what_was_lost_and_exits_non_ze
     """A bag cut at 50 % played nothing, although half of it was intact."""
     bag = tmp_path / "bag"
     start = 1_601_494_000_000_000_000
-    with bag_io.BagWriter(bag, flush_every_s=1e-9) as writer:  # a chunk per message, as a recorder writes
-        writer.add_topic(bag_io.DEFAULT_IMAGE_TOPIC, bag_io.COMPRESSED_IMAGE, "sensor_data")
+    with bag_writer.BagWriter(bag, flush_every_s=1e-9) as writer:  # a chunk per message, as a recorder writes
+        writer.add_topic(bag_topics.DEFAULT_IMAGE_TOPIC, bag_topics.COMPRESSED_IMAGE, "sensor_data")
         for k in range(20):
-            writer.write(bag_io.DEFAULT_IMAGE_TOPIC,
-                         bag_io.compressed_image(start + k * 100_000_000, synthetic.frame_jpeg(k)))
-    file = bag_io.mcap_file_of(bag)
+            writer.write(bag_topics.DEFAULT_IMAGE_TOPIC,
+                         bag_messages.compressed_image(start + k * 100_000_000, synthetic.frame_jpeg(k)))
+    file = bag_reader.mcap_file_of(bag)
     data = file.read_bytes()
     file.write_bytes(data[: len(data) // 2])
-    readable = len(bag_io.salvage_mcap(bag).messages)
+    readable = len(bag_salvage.salvage_mcap(bag).messages)
     assert 0 < readable < 20
     probe, status, output = replay(bag, "rate:=10.0")
     assert status == 1, output
@@ -363,7 +425,7 @@ def test_ros2_param_set_on_a_running_camera(tmp_path, monkeypatch, ros_env):
     """
     from rclpy.parameter import Parameter
 
-    from vessel_common.node_support import wait_for
+    from vessel_common.run import wait_for
     from vessel_detect.camera_node import CameraNode, ManagedCameraNode
 
     synthetic.write_bag(tmp_path / "bag", frames=3, frame_step_s=60.0, with_fixes=False)

@@ -8,7 +8,7 @@ import yaml
 from vessel_calib.calibration_parameters import DEFAULT_CAMERA_PARAMETERS
 from vessel_common.parameter_names import flatten
 from vessel_common.parameter_table import part_file_text
-from vessel_detect import bag_io
+from vessel_detect import bag_topics
 from vessel_detect.parameter_tables import (
     CAMERA_FIX_TOPIC,
     CAMERA_PARAMETERS,
@@ -23,10 +23,10 @@ from vessel_detect.parameter_tables import (
 REPO = Path(__file__).resolve().parents[3]
 
 
-def test_the_topic_names_are_bag_ios():
+def test_the_topic_names_are_those_of_the_bags():
     assert (IMAGE_TOPIC, CAMERA_FIX_TOPIC, GPS_TRUTH_TOPIC, DETECTION_2D_ARRAY) == (
-        bag_io.DEFAULT_IMAGE_TOPIC, bag_io.DEFAULT_CAMERA_FIX_TOPIC, bag_io.DEFAULT_GPS_TRUTH_TOPIC,
-        bag_io.DETECTION_2D_ARRAY)
+        bag_topics.DEFAULT_IMAGE_TOPIC, bag_topics.DEFAULT_CAMERA_FIX_TOPIC, bag_topics.DEFAULT_GPS_TRUTH_TOPIC,
+        bag_topics.DETECTION_2D_ARRAY)
 
 
 @pytest.mark.parametrize("table", [CAMERA_PARAMETERS, RECORDER_PARAMETERS], ids=lambda table: table.node)

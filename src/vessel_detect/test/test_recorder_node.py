@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vessel_detect import bag_io
+from vessel_detect import bag_messages, bag_reader
 
 pytestmark = pytest.mark.ros
 
@@ -126,18 +126,18 @@ def test_recorder_writes_a_readable_bag_after_sigint(tmp_path, ros_env, ros_cont
     assert counts["/vessel/fix"] == count and counts["/vessel/detections"] == count
     assert counts["/camera/fix"] == 1 and counts["/notes"] == count
     assert counts["/camera/image_raw/compressed"] >= count - 2  # best effort: nearly all
-    with bag_io.BagReader(output) as reader:
+    with bag_reader.BagReader(output) as reader:
         fixes = reader.fixes("/vessel/fix")
-        assert [bag_io.sec_to_ns(t) for t in fixes.stamps] == [T0 + k * 250_000_000 for k in range(count)]
+        assert [bag_messages.sec_to_ns(t) for t in fixes.stamps] == [T0 + k * 250_000_000 for k in range(count)]
         assert list(fixes.lats) == [32.7 + k * 1e-5 for k in range(count)]
         recorded = reader.read_topic("/vessel/detections")
         assert [m.detections[0].id for _, m in recorded] == [str(k) for k in range(count)]
         assert recorded[3][1].detections[0].results[0].hypothesis.class_id == "boat"
         # log time == header stamp where there is one
-        assert [bag_io.sec_to_ns(t) for t, _ in recorded] == [T0 + k * 250_000_000 for k in range(count)]
+        assert [bag_messages.sec_to_ns(t) for t, _ in recorded] == [T0 + k * 250_000_000 for k in range(count)]
         assert reader.topics["/notes"] == "std_msgs/msg/String"  # type taken from the graph
         assert reader.fixes("/camera/fix").lats[0] == 32.70297
-    assert sum(1 for m in bag_io.iter_mcap(output) if m.topic == "/vessel/fix") == count  # mcap reads it too
+    assert sum(1 for m in bag_reader.iter_mcap(output) if m.topic == "/vessel/fix") == count  # mcap reads it too
 
 
 def test_an_output_that_exists_or_cannot_be_made_is_one_error_line_and_nothing_is_touched(tmp_path, ros_env):

@@ -17,7 +17,9 @@ from vessel_detect.replay_pacing import (
     RateSchedule,
     Replay,
     ReplayHooks,
+    ReplayPosition,
     ReplayStats,
+    ResumeCursor,
     subscribers_to_wait_for,
     wait_until,
 )
@@ -62,6 +64,7 @@ class Item:
     stamp_ns: int
     loop: int = 0
     aux: bool = False
+    topic: str = ""
 
 
 class Sink:
@@ -273,3 +276,131 @@ def test_subscribers_to_wait_for_and_wait_until():
     timing.at(101.0, lambda: ready.append(True))
     assert wait_until(lambda: bool(ready), 5.0, timing) and timing.now == pytest.approx(101.0)
     assert not wait_until(lambda: False, 5.0, timing) and timing.now > 106.0
+
+
+# ------------------------------------------------------------------------------------------------ restarts (resume)
+FIX, TRUTH = "/camera/fix", "/vessel/gps_truth"
+
+
+def recorded_source(passes: int = 1, restamp: bool = True) -> list[Item]:
+    """A bag's items: the camera's fix first, then a frame and a GPS truth message sharing each stamp.
+
+    A later pass of a loop is shifted by the source's length (``restamp``), or repeats the stamps.
+    """
+    items = []
+    for loop in range(passes):
+        start = T0 + (5 * loop * NS_PER_S if restamp else 0)
+        items.append(Item(start, loop, aux=True, topic=FIX))
+        for k in range(5):
+            items += [Item(start + k * NS_PER_S, loop), Item(start + k * NS_PER_S, loop, aux=True, topic=TRUTH)]
+    return items
+
+
+def replay_with_resume(items, after=None, **settings):
+    """A replay of ``items`` carrying on after ``after``; (what it published in order, the positions it saved, sink)."""
+    timing, stats = FakeTiming(), ReplayStats()
+    sink = Sink(timing, stats)
+    published, saved = [], []
+    sink.published_at = []
+
+    def publish(item):
+        published.append(item)
+        sink.published_at.append(timing.now)
+
+    hooks = ReplayHooks(publish_frame=lambda item: publish(item) or sink.publish_frame(item), publish_aux=publish,
+                        publish_clock=sink.clock.append, count=sink.count, log=sink.logs.append,
+                        progress=lambda: "progress")
+    cursor = ResumeCursor(after, save=saved.append, latched=lambda item: item.topic == FIX)
+    Replay(PacingSettings(**settings), hooks, timing, AckWindow(timing), stats, is_frame=lambda item: not item.aux,
+           resume=cursor).run(items)
+    return published, saved, sink
+
+
+@pytest.mark.parametrize("loop_restamp", [True, False])
+def test_a_restarted_replay_carries_on_after_the_last_item_sent_whenever_the_crash_came(loop_restamp):
+    """``./vessel graph --respawn`` replayed from frame 0: every frame again, the tracker reset by stamps going back.
+
+    Here a crash after each item in turn (the position saved then is what the resume file holds): the restarted
+    replay sends exactly the rest, at once, with /clock going on; a frame and a message of one stamp are told apart;
+    the camera's latched fix is sent again first (a late subscriber of the new publisher gets it).
+    """
+    items = recorded_source(passes=2, restamp=loop_restamp)
+    everything, saved, _ = replay_with_resume(items, rate=1.0, loop_restamp=loop_restamp)
+    assert everything == items and len(saved) == len(items)
+    assert [position.frames_sent for position in saved][-1] == 10
+    for crash in range(len(items)):
+        rest, _, sink = replay_with_resume(items, after=saved[crash], rate=1.0, loop_restamp=loop_restamp)
+        resent_fix = [item for item in rest if item.topic == FIX and items.index(item) <= crash]
+        assert rest == resent_fix + items[crash + 1:], crash
+        assert len(resent_fix) == 1 and rest[:1] == resent_fix
+        if rest[1:]:  # no pause for what was skipped: the first item goes at once, /clock on from the last one sent
+            assert sink.published_at[0] == 100.0 and sink.clock[0] == items[crash + 1].stamp_ns
+            assert sink.clock[0] >= saved[crash].stamp_ns or not loop_restamp and items[crash + 1].loop == 1
+
+
+def test_max_frames_counts_the_frames_sent_before_a_restart():
+    items = recorded_source()
+    _, saved, _ = replay_with_resume(items, max_frames=3)
+    after_two = next(position for position in saved if position.frames_sent == 2)
+    rest, _, sink = replay_with_resume(items, after=after_two, max_frames=3)
+    assert len(sink.frames) == 1 and sink.logs == ["max_frames=3 reached"]
+    rest, _, sink = replay_with_resume(items, after=saved[-1], max_frames=3)  # all three sent before the restart
+    assert sink.frames == [] and sink.logs == ["max_frames=3 reached"]
+
+
+def test_replay_positions_as_json():
+    position = ReplayPosition(loop=1, stamp_ns=T0, at_stamp=2, frames_sent=7)
+    assert ReplayPosition.from_dict(position.as_dict()) == position
+    for bad in (None, {"loop": 1}, {**position.as_dict(), "at_stamp": -1}, {**position.as_dict(), "loop": "1"},
+                {**position.as_dict(), "extra": 0}):
+        with pytest.raises(ValueError):
+            ReplayPosition.from_dict(bad)
+
+
+def test_the_cameras_resume_file(tmp_path):
+    from vessel_detect.resume_files import (
+        ResumeFileError,
+        camera_record,
+        camera_resume_point,
+        camera_start_utc,
+        read_resume_file,
+        write_json_atomically,
+    )
+
+    path = tmp_path / "state" / "camera.resume"
+    assert read_resume_file(path, "camera") is None
+    position = ReplayPosition(0, T0 + 3 * NS_PER_S, 1, 3)
+    write_json_atomically(path, camera_record("bags/video_13", T0, 1_601_494_000.25, position))
+    assert [p.name for p in path.parent.iterdir()] == ["camera.resume"]  # no temporary file left
+    data = read_resume_file(path, "camera")
+    assert camera_resume_point(data, "bags/video_13", T0)[0] == position
+    assert camera_start_utc(data, "bags/video_13") == 1_601_494_000.25  # a video is stamped from it again
+    # Another source, or the same one starting at another time (a video stamped from a new start): from the start.
+    assert camera_resume_point(data, "bags/video_14", T0)[0] is None and camera_start_utc(data, "bags/video_14") is None
+    assert camera_resume_point(data, "bags/video_13", T0 + 1)[0] is None
+    assert camera_resume_point(None, "bags/video_13", T0) == (None, "no resume file: from the first frame")
+    for text in ("not json", '{"schema": "vessel_state", "version": 2, "node": "camera"}', "[1]"):
+        path.write_text(text)
+        with pytest.raises(ResumeFileError):
+            read_resume_file(path, "camera")
+    write_json_atomically(path, camera_record("bags/video_13", T0, None, position))
+    with pytest.raises(ResumeFileError):
+        read_resume_file(path, "recorder")
+
+
+def test_a_restarted_recorder_continues_into_the_next_part(tmp_path):
+    from vessel_detect.resume_files import recorder_output, recorder_record, recording_parts
+
+    out = tmp_path / "recording"
+    assert recorder_output(None, str(out)) == (None, [])  # a first start: the output as given
+    out.mkdir()
+    data = recorder_record([out])
+    assert recorder_output(data, str(out)) == (tmp_path / "recording.1", [out])
+    assert recorder_output(data, "") == (tmp_path / "recording.1", [out])  # no output given: the recording's
+    assert recorder_output(data, str(tmp_path / "other")) == (None, [])  # another recording: a first start
+    for name in ("recording.1", "recording.2", "recording.10", "recording.x", "recording.01", "recordings.3"):
+        (tmp_path / name).mkdir()
+    (tmp_path / "recording.damaged.mcap").write_bytes(b"")  # what bag recover keeps aside
+    assert recording_parts(out) == [out] + [tmp_path / f"recording.{n}" for n in (1, 2, 10)]
+    parts = [out, tmp_path / "recording.1", tmp_path / "recording.2", tmp_path / "recording.10"]
+    assert recorder_output(recorder_record(parts), str(out)) == (tmp_path / "recording.11", parts)

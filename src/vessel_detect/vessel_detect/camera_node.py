@@ -11,6 +11,10 @@ The parameters are `vessel_detect.parameter_tables.CAMERA_PARAMETERS`. `rate` an
 while it runs (`ros2 param set /camera rate 8.0`: the replay paces at the new rate from the next frame); the rest
 are read-only (a restart with `-p NAME:=VALUE` changes them). The pacing is `vessel_detect.replay_pacing`.
 
+With a `resume_file` (the graph runners give one under respawn) a recorded source's replay notes where it is after
+every frame or message sent, and a camera restarted after a crash carries on after the last one (same stamps, the
+latest camera fix sent again) instead of replaying from the first frame (`vessel_detect.resume_files`).
+
     ros2 run vessel_detect camera --ros-args -p source:=bags/video_13 -p rate:=10.0
     ros2 run vessel_detect camera --ros-args -p source:=device:0 -p publish_raw:=true
 """
@@ -19,6 +23,8 @@ from __future__ import annotations
 
 import array
 import threading
+import time
+from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.lifecycle import LifecycleNode
@@ -28,16 +34,13 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CompressedImage, Image, NavSatFix, NavSatStatus
 
 from vessel_common.errors import DataError, VesselError
+from vessel_common.health import NodeHealth
+from vessel_common.lifecycle import PhasedLifecycle, release_publisher
 from vessel_common.node_parameters import declare_table
-from vessel_common.node_support import (
-    LATCHED_QOS,
-    NodeHealth,
-    PhasedLifecycle,
-    image_qos_profile,
-    main_for,
-    release_publisher,
-    reliable_qos,
-)
+from vessel_common.qos import LATCHED_QOS, image_qos_profile, reliable_qos
+from vessel_common.run import main_for
+from vessel_detect.file_sources import parse_utc
+from vessel_detect.image_source import AuxMessage, Frame, ImageSource
 from vessel_detect.parameter_tables import CAMERA_PARAMETERS
 from vessel_detect.replay_pacing import (
     SUBSCRIBER_SETTLE_S,
@@ -45,13 +48,26 @@ from vessel_detect.replay_pacing import (
     PacingSettings,
     Replay,
     ReplayHooks,
+    ReplayPosition,
     ReplayStats,
+    ResumeCursor,
     WallTiming,
     subscribers_to_wait_for,
     wait_until,
 )
+from vessel_detect.resume_files import (
+    ResumeFileError,
+    camera_record,
+    camera_resume_point,
+    camera_start_utc,
+    read_resume_file,
+    write_json_atomically,
+)
 from vessel_detect.ros_messages import message_class, stamp_ns, time_msg
-from vessel_detect.sources import AuxMessage, Frame, ImageSource, open_source, parse_utc
+from vessel_detect.source_spec import open_source
+
+RESUME_MARGIN_S = 0.001
+"""A restarted replay opens its source this much before the last item sent (the replay skips up to it by stamp)."""
 
 
 class _CameraPhases:
@@ -84,6 +100,9 @@ class _CameraPhases:
         self._worker: threading.Thread | None = None
         self._camera_publishers: list = []
         self._ack_subscription = None
+        self._resume_point: ReplayPosition | None = None  # where the next activation carries on (resume_file)
+        self._start_utc: float | None = None
+        self._first_ns: int | None = None
 
     def _make_publisher(self, message_type, topic: str, qos):
         publisher = self.create_publisher(message_type, topic, qos)
@@ -92,11 +111,15 @@ class _CameraPhases:
 
     def _configure(self) -> None:
         p = self.params
+        resume_data = self._read_resume_file()
+        self._start_utc = parse_utc(p["start_utc"]) if p["start_utc"] else None
+        if self._start_utc is None and p["resume_file"]:  # the start before a restart: the frames keep their stamps
+            self._start_utc = camera_start_utc(resume_data, p["source"]) or time.time()
         self.source = open_source(
             p["source"],
             image_topic=p["image_topic"],
             aux_topics=[p["camera_fix_topic"], p["gps_truth_topic"]] if p["republish"] else [],
-            start_utc=parse_utc(p["start_utc"]) if p["start_utc"] else None,
+            start_utc=self._start_utc,
             fps=p["fps"] or None,
             device_width=p["device_width"],
             device_height=p["device_height"],
@@ -110,6 +133,8 @@ class _CameraPhases:
         self.publish_clock = p["publish_clock"] and not self.live
         self.exit_at_end = p["exit_at_end"] and not self.live
         self.total_frames = self.source.frame_count()
+        self._first_ns = self.source.first_stamp_ns()
+        self._resume_point = self._resume_point_of(resume_data)
         self.health.set_value("source", self.source.description)
         self.damage = getattr(self.source, "damage", "")
         if self.damage:
@@ -136,6 +161,45 @@ class _CameraPhases:
         if self.rate == 0:
             self._subscribe_acks()
 
+    def _read_resume_file(self) -> dict | None:
+        """What the resume file holds (None without one, or when it is not a camera's: then from the first frame)."""
+        if not self.params["resume_file"]:
+            return None
+        try:
+            return read_resume_file(Path(self.params["resume_file"]).expanduser(), "camera")
+        except ResumeFileError as error:
+            self.health.problem("resume_file_refused", f"{error}: replaying from the first frame")
+            return None
+
+    def _resume_point_of(self, data: dict | None) -> ReplayPosition | None:
+        """Where a restarted replay carries on; a source that is not looped then starts just before it (its offset)."""
+        if not self.params["resume_file"] or self.live:
+            if self.live and self.params["resume_file"]:
+                self.get_logger().info("a live camera just continues: resume_file is not used")
+            return None
+        try:
+            point, message = camera_resume_point(data, self.params["source"], self._first_ns)
+        except ResumeFileError as error:
+            self.health.problem("resume_file_refused", f"{error}: replaying from the first frame")
+            return None
+        if data is not None:
+            self.get_logger().info(f"resume file {self.params['resume_file']}: {message}")
+        if point is not None and point.loop == 0 and not self.params["loop"] and self._first_ns is not None:
+            # Skip what was sent without reading it (a bag or video seeks); the replay skips the rest by stamp.
+            offset_s = (point.stamp_ns - self._first_ns) / 1e9 - RESUME_MARGIN_S
+            self.source.start_offset_s = max(self.source.start_offset_s, offset_s)
+        return point
+
+    def _save_resume(self, position: ReplayPosition) -> None:
+        """Note where the replay is (after each item sent), for a restart."""
+        self._resume_point = position
+        record = camera_record(self.params["source"], self._first_ns, self._start_utc, position)
+        try:
+            write_json_atomically(Path(self.params["resume_file"]).expanduser(), record)
+        except OSError as error:
+            self.health.problem("resume_file_unwritable", f"cannot write resume file {self.params['resume_file']} "
+                                f"({error.strerror or error}): a restart would replay from the first frame")
+
     def _subscribe_acks(self) -> None:
         """At rate 0: the detections whose arrival releases the next frame."""
         if self._ack_subscription is None:
@@ -160,8 +224,11 @@ class _CameraPhases:
         hooks = ReplayHooks(publish_frame=self._publish_frame, publish_aux=self._publish_aux,
                             publish_clock=self._publish_clock if self.clock_pub is not None else None,
                             count=self._count, log=self.get_logger().info, progress=self._progress_text)
+        saves = bool(p["resume_file"]) and not self.live
+        resume = ResumeCursor(self._resume_point, save=self._save_resume if saves else None,
+                              latched=lambda item: isinstance(item, AuxMessage) and item.topic == p["camera_fix_topic"])
         self.replay = Replay(self._pacing_settings(), hooks, self._timing, self.acks, self.stats, live=self.live,
-                             is_frame=lambda item: not isinstance(item, AuxMessage))
+                             is_frame=lambda item: not isinstance(item, AuxMessage), resume=resume)
         self._worker = threading.Thread(target=self._run, name="camera-replay", daemon=True)
         self._worker.start()
 
@@ -368,6 +435,8 @@ class _CameraPhases:
             f"{s.aux_sent} other messages" + (f", {s.late} late" if s.late else "")
             + (f", {s.ack_timeouts} ack timeouts" if s.ack_timeouts else "")
             + (f", {s.unanswered} without detections (a later frame's came)" if s.unanswered else "")
+            + (f"; carried on after a restart ({self.replay.resume.after.frames_sent} frames sent before it)"
+               if self.replay is not None and self.replay.resume.after is not None else "")
         )
         if self._shutting_down():
             return

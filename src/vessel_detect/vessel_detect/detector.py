@@ -341,7 +341,8 @@ def load_model(
     path = resolve_model(spec, cache_dir=cache_dir, allow_download=allow_download)
     names = read_class_names(Path(class_names_file)) if class_names_file else None
     return OnnxModel(
-        path, intra_op_threads, layout, names, expected_sha256=spec.expected_sha256, how_to_get=how_to_get(spec)
+        path, intra_op_threads, layout, names, expected_sha256=spec.expected_sha256,
+        how_to_get=how_to_get(spec, cache_dir),
     )
 
 

@@ -34,17 +34,11 @@ from sensor_msgs.msg import CompressedImage, Image
 
 from vessel_calib.camera_parameters import declare_camera_model
 from vessel_common.errors import VesselError
+from vessel_common.health import NodeHealth, steady_timer
+from vessel_common.lifecycle import PhasedLifecycle, release_publisher
 from vessel_common.node_parameters import declare_table
-from vessel_common.node_support import (
-    SENSOR_DATA_QOS,
-    NodeHealth,
-    PhasedLifecycle,
-    image_qos_profile,
-    main_for,
-    release_publisher,
-    reliable_qos,
-    steady_timer,
-)
+from vessel_common.qos import SENSOR_DATA_QOS, image_qos_profile, reliable_qos
+from vessel_common.run import main_for
 from vessel_detect.detector import Detections, annotate
 from vessel_detect.detector_params import DETECTOR_PARAMETERS, NODE_NAME, build_detector, detector_config
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr

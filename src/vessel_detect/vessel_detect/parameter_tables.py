@@ -11,7 +11,7 @@ from __future__ import annotations
 from vessel_calib.calibration_parameters import DEFAULT_CAMERA_PARAMETERS
 from vessel_common.parameter_table import Param, ParameterTable
 
-# The topic and type names of vessel_detect.bag_io, which this ROS-free module cannot import (a test compares them).
+# The topic and type names of vessel_detect.bag_topics, which this ROS-free module cannot import (a test compares them).
 IMAGE_TOPIC = "/camera/image_raw/compressed"
 CAMERA_FIX_TOPIC = "/camera/fix"
 GPS_TRUTH_TOPIC = "/vessel/gps_truth"
@@ -86,6 +86,11 @@ CAMERA_PARAMETERS = ParameterTable("camera", CAMERA_TITLE, (
           "alive, e.g. to keep the latched camera fix available."),
     Param("end_linger_s", 1.0, "Seconds to stay up after the last frame so subscribers receive it.",
           value_range=(0.0, 60.0), live=True),
+    Param("resume_file", "", "Where a recorded source's replay is, written (JSON, atomically) after every frame or "
+          "message sent, so that a camera restarted after a crash (respawn) carries on after the last one it sent "
+          "instead of replaying from the first frame; the latest camera fix is sent again. Used only for the same "
+          "source and start time; a live camera just continues. '': none (./vessel graph --respawn and the launch "
+          "file's respawn:=true give one)."),
 ), notes=("`source` is usually given on the command line (-p source:=bags/video_13) or by the launch file / "
           "./vessel demo.",))
 """The camera node's parameters. Live: ``rate`` (the replay paces from the next frame at the new rate; a live
@@ -116,6 +121,10 @@ RECORDER_PARAMETERS = ParameterTable("recorder", "Recorder node (vessel_detect r
     Param("flush_period_s", 1.0, "Write what was received to disk this often (a recorder killed with -9 loses at "
           "most this much; `./vessel bag recover` makes its bag readable); 0: only at the end, s.",
           value_range=(0.0, 3600.0)),
+    Param("resume_file", "", "Where the recorder notes the bags of its recording (JSON), so that a recorder restarted "
+          "after a crash (respawn) records into the next part beside them, OUTPUT.1, OUTPUT.2, ..., instead of "
+          "refusing the existing OUTPUT, which stays as it is (./vessel bag recover OUTPUT makes it readable). '': "
+          "none (./vessel graph --respawn and the launch file's respawn:=true give one)."),
 ))
 """The recorder's parameters, all read-only: the bag, its topics and its writer are set up at start."""
 

@@ -9,6 +9,9 @@ message with no time yet (an unset stamp before the first `/clock` of a replay) 
 time, never at 1970, so a recording of a replay spans the replay's time only. On
 SIGINT/SIGTERM the bag is closed properly: index, summary and metadata.yaml written, nothing received is lost.
 Its parameters (``vessel_detect.parameter_tables.RECORDER_PARAMETERS``) are read-only: a restart changes them.
+With a ``resume_file`` (the graph runners give one under respawn) a recorder restarted after a crash does not fail on
+the bag its predecessor left: it records into the next part beside it, ``OUTPUT.1``, ``OUTPUT.2``, ... (the earlier
+part stays as it is: ``./vessel bag recover OUTPUT`` makes it readable; ``resume_files.recording_parts`` lists them).
 
     ros2 run vessel_detect recorder --ros-args -p output:=out/run1 \
         -p topics:="['/vessel/fix', '/vessel/tracks:vessel_msgs/msg/VesselTrackArray']"
@@ -27,10 +30,18 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vessel_common.errors import DataError, VesselError
+from vessel_common.health import NodeHealth, steady_timer
 from vessel_common.node_parameters import declare_table
-from vessel_common.node_support import NodeHealth, main_for, steady_timer
-from vessel_detect import bag_io
+from vessel_common.run import main_for
+from vessel_detect import bag_messages, bag_writer
 from vessel_detect.parameter_tables import RECORDER_DEFAULT_TOPICS, RECORDER_PARAMETERS
+from vessel_detect.resume_files import (
+    ResumeFileError,
+    read_resume_file,
+    recorder_output,
+    recorder_record,
+    write_json_atomically,
+)
 from vessel_detect.ros_messages import message_class
 
 DEFAULT_TOPICS = list(RECORDER_DEFAULT_TOPICS)
@@ -57,7 +68,7 @@ def parse_topic_entry(entry: str) -> TopicPlan:
     name = name.strip()
     if not name.startswith("/") or " " in name:
         raise DataError(f"topic entry {entry!r}: the topic must be an absolute name like /vessel/fix")
-    return TopicPlan(name, bag_io.normalise_msgtype(msgtype) if msgtype.strip() else "")
+    return TopicPlan(name, bag_messages.normalise_msgtype(msgtype) if msgtype.strip() else "")
 
 
 def header_stamp_ns(cdr: bytes) -> int | None:
@@ -73,7 +84,7 @@ def header_stamp_ns(cdr: bytes) -> int | None:
 
 def starts_with_header(msgtype: str) -> bool:
     """Whether the type's first field is a std_msgs/Header (rosbags type store)."""
-    store = bag_io.typestore()
+    store = bag_messages.typestore()
     if msgtype not in store.fielddefs:
         return False
     fields = store.fielddefs[msgtype][1]
@@ -92,15 +103,16 @@ class RecorderNode(Node):
         self.plans = [parse_topic_entry(e) for e in entries if e.strip()]
         if not self.plans:
             raise DataError("parameter 'topics' is empty: name at least one topic to record")
-        if not output:
-            output = f"rosbag2_{datetime.now(tz=UTC).strftime('%Y_%m_%d-%H_%M_%S')}"
-        self.output = Path(output).expanduser()
+        self.resume_file = Path(values["resume_file"]).expanduser() if values["resume_file"] else None
         self.health = NodeHealth(self, hardware_id="recorder")
         self.health.count("messages", 0)
+        self.output, earlier = self._output_of(output)
         self.health.set_value("output", str(self.output))
-        self.writer = bag_io.BagWriter(
-            self.output, overwrite=self.overwrite, atomic=False, flush_every_s=self.flush_period_s,
+        self.writer = bag_writer.BagWriter(
+            self.output, overwrite=self.overwrite and not earlier, atomic=False, flush_every_s=self.flush_period_s,
             overwrite_hint="give another -p output:=..., or -p overwrite:=true to replace it").open()
+        self.parts = [*earlier, self.output]
+        self._note_parts()
         self.finished = False
         self._closed = False
         self._last_progress = time.monotonic()
@@ -111,6 +123,34 @@ class RecorderNode(Node):
         self.get_logger().info(
             f"recording {', '.join(p.name for p in self.plans)} into {self.output} (SIGINT to stop and close)"
         )
+
+    def _output_of(self, output: str) -> tuple[Path, list[Path]]:
+        """The bag to write, and the earlier parts of this recording when this is a restart (its resume_file)."""
+        try:
+            data = read_resume_file(self.resume_file, "recorder") if self.resume_file is not None else None
+            continued, earlier = recorder_output(data, output)
+        except ResumeFileError as error:
+            self.health.problem("resume_file_refused", f"{error}: recording as on a first start")
+            continued, earlier = None, []
+        if continued is not None:
+            self.get_logger().info(
+                f"a restart: continuing the recording {earlier[0]} into {continued} (the earlier part"
+                f"{'s' if len(earlier) > 1 else ''} {', '.join(map(str, earlier))} stay as they are; `./vessel bag "
+                "recover` makes one that was not closed readable)")
+            return continued, earlier
+        if not output:
+            output = f"rosbag2_{datetime.now(tz=UTC).strftime('%Y_%m_%d-%H_%M_%S')}"
+        return Path(output).expanduser(), []
+
+    def _note_parts(self) -> None:
+        """Write the recording's parts to the resume file, so that a restarted recorder continues beside them."""
+        if self.resume_file is None:
+            return
+        try:
+            write_json_atomically(self.resume_file, recorder_record(self.parts))
+        except OSError as error:
+            self.health.problem("resume_file_unwritable", f"cannot write resume file {self.resume_file} "
+                                f"({error.strerror or error}): a restarted recorder would refuse {self.output}")
 
     # ------------------------------------------------------------------------------------------------ discovery
     def _discover(self) -> None:
@@ -127,7 +167,7 @@ class RecorderNode(Node):
                 self.health.problem("topic_unrecordable", f"cannot record {plan.name}: {error}")
 
     def _subscribe(self, plan: TopicPlan, infos) -> None:
-        types = {bag_io.normalise_msgtype(i.topic_type) for i in infos}
+        types = {bag_messages.normalise_msgtype(i.topic_type) for i in infos}
         if not plan.msgtype:
             if len(types) != 1:
                 raise DataError(f"publishers disagree on the type ({', '.join(sorted(types))}); name it")

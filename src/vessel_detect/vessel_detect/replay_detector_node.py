@@ -29,16 +29,10 @@ from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Header
 
 from vessel_common.errors import DataError
+from vessel_common.health import NodeHealth, steady_timer
 from vessel_common.node_parameters import declare_table
-from vessel_common.node_support import (
-    NodeHealth,
-    image_qos_profile,
-    main_for,
-    reliable_qos,
-    sec_to_stamp,
-    stamp_to_sec,
-    steady_timer,
-)
+from vessel_common.qos import image_qos_profile, reliable_qos, sec_to_stamp, stamp_to_sec
+from vessel_common.run import main_for
 from vessel_detect.parameter_tables import REPLAY_CSV_COLUMNS, REPLAY_DETECTOR_PARAMETERS
 from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose, VesselTrackArray
 

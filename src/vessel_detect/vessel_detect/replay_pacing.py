@@ -7,6 +7,10 @@ the detections of the one before (``frames_in_flight`` 1) or of the one before t
 for detections over. A change of rate while the replay runs applies from the moment it is made: the time to the next
 item and on is paced at the new rate (a frame already waiting for detections at rate 0 waits on).
 
+A replay restarted after a crash carries on after the last item the one before handled (``ResumeCursor``): the
+items up to that ``ReplayPosition`` are skipped without pacing or ``/clock``, the latest skipped one of each latched
+topic is published again before the first new item, and ``max_frames`` counts the frames sent before the restart.
+
 The node (``vessel_detect.camera_node``) gives the publishing as ``ReplayHooks`` and the time as a ``Timing``
 (``WallTiming``: the monotonic clock and the node's stop event); the tests give a fake one.
 """
@@ -229,6 +233,90 @@ class AckWindow:
 
 
 @dataclass(frozen=True)
+class ReplayPosition:
+    """Where a replay is in its source, to carry on from after a restart.
+
+    The pass (``loop``) and stamp of the last item it handled (sent, or dropped as late or unreadable), how many
+    items it handled at exactly that pass and stamp (a frame and another message may share one), and the frames it
+    sent in all.
+    """
+
+    loop: int = 0
+    stamp_ns: int = 0
+    at_stamp: int = 0
+    frames_sent: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """The position as JSON data."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: object) -> ReplayPosition:
+        """The position ``as_dict`` made; ValueError for anything else."""
+        names = [f.name for f in fields(cls)]
+        if not isinstance(data, dict) or sorted(data) != sorted(names):
+            raise ValueError(f"not a replay position (the fields {', '.join(names)})")
+        if not all(type(data[name]) is int and data[name] >= 0 for name in names):
+            raise ValueError("a field of the replay position is not a whole number >= 0")
+        return cls(**{name: data[name] for name in names})
+
+
+class ResumeCursor:
+    """Where a replay carries on after a restart, and where it is now, for the next one.
+
+    Items at or before ``after`` (at its very pass and stamp: its first ``at_stamp`` items) are skipped; of the skipped
+    items, the latest of each topic that ``latched(item)`` holds is kept and published again before the first new
+    item (or at the end if none comes), so a restarted node's latched publisher has it for late subscribers. ``save``
+    gets the position after every item handled (the node writes it to its resume file).
+    """
+
+    def __init__(self, after: ReplayPosition | None = None,
+                 save: Callable[[ReplayPosition], None] | None = None,
+                 latched: Callable[[Any], bool] | None = None) -> None:
+        self.after = after
+        self.position = after or ReplayPosition()
+        self._save = save
+        self._latched = latched
+        self._skipping = after is not None
+        self._skipped_at_stamp = 0
+        self._held: dict[object, Any] = {}
+        self.skipped = 0
+
+    @property
+    def frames_sent(self) -> int:
+        """Frames sent before the restart and since."""
+        return self.position.frames_sent
+
+    def skips(self, item) -> bool:
+        """Whether ``item`` was handled before the restart (then it is skipped, a latched one kept)."""
+        if not self._skipping:
+            return False
+        key, after = (item.loop, item.stamp_ns), (self.after.loop, self.after.stamp_ns)
+        if key == after and self._skipped_at_stamp < self.after.at_stamp:
+            self._skipped_at_stamp += 1
+        elif key >= after:
+            self._skipping = False
+            return False
+        self.skipped += 1
+        if self._latched is not None and self._latched(item):
+            self._held[getattr(item, "topic", None)] = item
+        return True
+
+    def take_held(self) -> list:
+        """The latched items skipped, to publish again now (once)."""
+        held, self._held = list(self._held.values()), {}
+        return held
+
+    def handled(self, item, sent_frame: bool) -> None:
+        """``item`` was handled (``sent_frame``: a frame that went out): the position moves past it and is saved."""
+        same = (item.loop, item.stamp_ns) == (self.position.loop, self.position.stamp_ns)
+        self.position = ReplayPosition(item.loop, item.stamp_ns, self.position.at_stamp + 1 if same else 1,
+                                       self.position.frames_sent + int(sent_frame))
+        if self._save is not None:
+            self._save(self.position)
+
+
+@dataclass(frozen=True)
 class ReplayHooks:
     """What the replay does with items, given by the node.
 
@@ -249,7 +337,8 @@ class Replay:
     """One replay of a source's items (frames and other messages, each with ``stamp_ns`` and ``loop``)."""
 
     def __init__(self, settings: PacingSettings, hooks: ReplayHooks, timing: Timing, acks: AckWindow,
-                 stats: ReplayStats, *, live: bool = False, is_frame: Callable[[Any], bool]) -> None:
+                 stats: ReplayStats, *, live: bool = False, is_frame: Callable[[Any], bool],
+                 resume: ResumeCursor | None = None) -> None:
         self.settings = settings
         self.hooks = hooks
         self.timing = timing
@@ -257,6 +346,7 @@ class Replay:
         self.stats = stats
         self.live = live
         self.is_frame = is_frame
+        self.resume = resume or ResumeCursor()
         self.schedule = RateSchedule(settings.rate)
         self._in_flight: deque[int] = deque()  # stamps of frames sent whose detections have not arrived (rate 0)
         self._last_clock_ns: int | None = None
@@ -277,6 +367,11 @@ class Replay:
         for item in items:
             if self.timing.stopped():
                 return
+            if self.resume.skips(item):
+                continue
+            self._publish_held()
+            if self._max_frames_reached():  # a restart after the last of them
+                return
             if item.loop != pass_index:
                 pass_index = item.loop
                 if not self.settings.loop_restamp:
@@ -286,18 +381,32 @@ class Replay:
                 return
             if not self.is_frame(item):
                 self.hooks.publish_aux(item)
+                self.resume.handled(item, False)
                 continue
             if self._dropped_late(item, late_s):
+                self.resume.handled(item, False)
                 continue
             self._send(item)
-            if 0 < self.settings.max_frames <= self.stats.sent:
-                self.hooks.log(f"max_frames={self.settings.max_frames} reached")
-                self._drain()
+            if self._max_frames_reached():
                 return
             if self.timing.monotonic() - last_log > PROGRESS_PERIOD_S:
                 last_log = self.timing.monotonic()
                 self.hooks.log(self.hooks.progress())
+        self._publish_held()
         self._drain()
+
+    def _max_frames_reached(self) -> bool:
+        """Whether ``max_frames`` frames went out (before a restart too); then the frames in flight are waited for."""
+        if not 0 < self.settings.max_frames <= self.resume.frames_sent:
+            return False
+        self.hooks.log(f"max_frames={self.settings.max_frames} reached")
+        self._drain()
+        return True
+
+    def _publish_held(self) -> None:
+        """The latched items skipped after a restart, again: before the first new item, or at the end."""
+        for held in self.resume.take_held():
+            self.hooks.publish_aux(held)
 
     def _start_over(self) -> None:
         """The stamps start over (a loop that repeats them), so the pacing, /clock and the acks do too."""
@@ -362,6 +471,7 @@ class Replay:
         """Publish a frame; at rate 0 then wait for the detections it needs before the next one."""
         self.acks.sent(frame.stamp_ns)
         published = self.hooks.publish_frame(frame)
+        self.resume.handled(frame, published)  # before the wait for detections: a crash there resumes after it
         if not self.waits_for_acks():
             self._in_flight.clear()  # paced by the rate (now): no frame waits for detections
         elif published:

@@ -7,7 +7,7 @@ import importlib
 from builtin_interfaces.msg import Time
 
 from vessel_common.errors import DataError
-from vessel_detect.bag_io import normalise_msgtype
+from vessel_detect.bag_messages import normalise_msgtype
 
 NS_PER_S = 1_000_000_000
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vessel_common.errors import DataError
-from vessel_detect import bag_io
+from vessel_detect import bag_messages, bag_reader, bag_topics
 from vessel_fixtures import detect_synthetic as synthetic
 from vessel_tools.detect import bag_build
 
@@ -20,30 +20,31 @@ def run_cli(args, capsys):
 
 def read_back(path):
     """Images (stamp ns, bytes) and fixes per topic, read with rosbags and again with the mcap library."""
-    with bag_io.BagReader(path) as reader:
-        images = [(bag_io.sec_to_ns(t), data) for t, data in reader.images()]
+    with bag_reader.BagReader(path) as reader:
+        images = [(bag_messages.sec_to_ns(t), data) for t, data in reader.images()]
         fixes = {
             topic: reader.fixes(topic)
-            for topic in (bag_io.DEFAULT_CAMERA_FIX_TOPIC, bag_io.DEFAULT_GPS_TRUTH_TOPIC)
+            for topic in (bag_topics.DEFAULT_CAMERA_FIX_TOPIC, bag_topics.DEFAULT_GPS_TRUTH_TOPIC)
             if topic in reader.topics
         }
         times = [m.log_time_ns for m in reader.messages()]
-    store = bag_io.typestore()
+    store = bag_messages.typestore()
     via_mcap_images, via_mcap_fixes = [], {}
-    for message in bag_io.iter_mcap(path):
+    for message in bag_reader.iter_mcap(path):
         decoded = store.deserialize_cdr(message.cdr, message.msgtype)
-        assert message.log_time_ns == bag_io.ns_of_stamp(decoded.header.stamp)
-        if message.topic == bag_io.DEFAULT_IMAGE_TOPIC:
+        assert message.log_time_ns == bag_messages.ns_of_stamp(decoded.header.stamp)
+        if message.topic == bag_topics.DEFAULT_IMAGE_TOPIC:
             assert decoded.format == "jpeg" and decoded.header.frame_id == "camera"
             via_mcap_images.append((message.log_time_ns, bytes(decoded.data)))
         else:
             via_mcap_fixes.setdefault(message.topic, []).append(
-                (bag_io.ns_of_stamp(decoded.header.stamp), decoded.latitude, decoded.longitude)
+                (bag_messages.ns_of_stamp(decoded.header.stamp), decoded.latitude, decoded.longitude)
             )
     assert via_mcap_images == images
     for topic, series in fixes.items():
         assert via_mcap_fixes[topic] == [
-            (bag_io.sec_to_ns(t), la, lo) for t, la, lo in zip(series.stamps, series.lats, series.lons, strict=True)
+            (bag_messages.sec_to_ns(t), la, lo)
+            for t, la, lo in zip(series.stamps, series.lats, series.lons, strict=True)
         ]
     assert times == sorted(times)
     return images, fixes
@@ -60,15 +61,15 @@ def test_dataset_round_trip_every_byte_and_fix(tmp_path, capsys):
     for video in (13, 14):
         images, fixes = read_back(tmp_path / "bags" / f"video_{video}")
         stamps = data.stamps[video]
-        assert [t for t, _ in images] == [bag_io.sec_to_ns(s) for s in stamps]
+        assert [t for t, _ in images] == [bag_messages.sec_to_ns(s) for s in stamps]
         frames = sorted((data.path / "frames" / str(video)).glob("*.jpg"))
         assert [b for _, b in images] == [f.read_bytes() for f in frames]
-        camera = fixes[bag_io.DEFAULT_CAMERA_FIX_TOPIC]
+        camera = fixes[bag_topics.DEFAULT_CAMERA_FIX_TOPIC]
         assert np.all(camera.lats == synthetic.CAMERA_LAT) and np.all(camera.lons == synthetic.CAMERA_LON)
         assert camera.stamps[0] == pytest.approx(stamps[0]) and camera.stamps[-1] <= stamps[-1]
         assert len(camera) == math.floor(stamps[-1] - stamps[0]) + 1  # 1 Hz from the first frame
-        assert np.all(camera.status == bag_io.STATUS_FIX)
-        truth = fixes[bag_io.DEFAULT_GPS_TRUTH_TOPIC]
+        assert np.all(camera.status == bag_topics.STATUS_FIX)
+        truth = fixes[bag_topics.DEFAULT_GPS_TRUTH_TOPIC]
         expected = [g for g in data.gps if stamps[0] - margin <= g[0] <= stamps[-1] + margin]
         assert len(truth) == len(expected) > 0
         np.testing.assert_allclose(truth.stamps, [g[0] for g in expected], rtol=0, atol=1e-6)
@@ -95,7 +96,8 @@ def test_unreadable_and_missing_jpegs_are_skipped_and_counted(tmp_path, capsys):
     assert "00200.jpg is unreadable" in out and "00300.jpg is missing" in out
     assert "video_13: 4 frames, 2 frames skipped" in out
     images, _ = read_back(tmp_path / "bags" / "video_13")
-    assert [t for t, _ in images] == [bag_io.sec_to_ns(s) for i, s in enumerate(data.stamps[13]) if i not in (2, 3)]
+    assert [t for t, _ in images] == [bag_messages.sec_to_ns(s) for i, s in enumerate(data.stamps[13])
+                                      if i not in (2, 3)]
 
 
 def test_frames_out_of_time_order_are_refused(tmp_path, capsys):
@@ -131,15 +133,15 @@ def test_video_mode_with_gps_garbage_rows(tmp_path, capsys):
     assert status == 0, err
     assert "boat: 12 frames" in out and "3 GPS rows skipped" in out
     images, fixes = read_back(tmp_path / "bags" / "boat")
-    assert [t for t, _ in images] == [bag_io.sec_to_ns(start) + k * 100_000_000 for k in range(12)]
+    assert [t for t, _ in images] == [bag_messages.sec_to_ns(start) + k * 100_000_000 for k in range(12)]
     for k, (_, jpeg) in enumerate(images):  # re-encoded frames still show the right picture
-        decoded = bag_io.np.frombuffer(jpeg, dtype=np.uint8)
+        decoded = np.frombuffer(jpeg, dtype=np.uint8)
         import cv2
 
         image = cv2.imdecode(decoded, cv2.IMREAD_COLOR)
         assert image.shape == (120, 160, 3)
         assert np.abs(image.astype(int) - synthetic.frame_image(k).astype(int)).mean() < 12
-    assert len(fixes[bag_io.DEFAULT_GPS_TRUTH_TOPIC]) == good  # every good row, none of the garbage
+    assert len(fixes[bag_topics.DEFAULT_GPS_TRUTH_TOPIC]) == good  # every good row, none of the garbage
 
 
 def test_video_mode_fixed_fps_every_and_mp4(tmp_path, capsys):
@@ -151,8 +153,8 @@ def test_video_mode_fixed_fps_every_and_mp4(tmp_path, capsys):
     )
     assert status == 0, err
     images, fixes = read_back(tmp_path / "bags" / "clip3")
-    assert [t for t, _ in images] == [bag_io.sec_to_ns(1601495752.5 + k / 20) for k in (0, 3, 6, 9)]
-    assert bag_io.DEFAULT_GPS_TRUTH_TOPIC not in fixes  # no --gps: no truth topic
+    assert [t for t, _ in images] == [bag_messages.sec_to_ns(1601495752.5 + k / 20) for k in (0, 3, 6, 9)]
+    assert bag_topics.DEFAULT_GPS_TRUTH_TOPIC not in fixes  # no --gps: no truth topic
 
 
 def test_video_mode_errors(tmp_path, capsys):
@@ -193,11 +195,11 @@ def test_shared_dataset_video_round_trip(tmp_path, capsys):
     records = dataset.frames([15])
     images, fixes = read_back(tmp_path / "video_15")
     assert [b for _, b in images] == [r.path.read_bytes() for r in records]
-    assert [t for t, _ in images] == [bag_io.sec_to_ns(r.stamp) for r in records]
+    assert [t for t, _ in images] == [bag_messages.sec_to_ns(r.stamp) for r in records]
     track = dataset.gps_track()
     margin = bag_build.BuildOptions().gps_margin_s
     keep = (track.stamps >= records[0].stamp - margin) & (track.stamps <= records[-1].stamp + margin)
-    truth = fixes[bag_io.DEFAULT_GPS_TRUTH_TOPIC]
+    truth = fixes[bag_topics.DEFAULT_GPS_TRUTH_TOPIC]
     assert len(truth) == int(keep.sum()) > 100
     np.testing.assert_array_equal(truth.lats, track.lats[keep])
     np.testing.assert_array_equal(truth.lons, track.lons[keep])

@@ -2,14 +2,14 @@
 import numpy as np
 import pytest
 
-from vessel_detect import bag_io
+from vessel_detect import bag_messages, bag_writer
 from vessel_tools.demo import recorded_detection_frames
 from vessel_track.tracker_node import load_detection_inputs
 
 
 def _detection(types, x, hypotheses):
     return types["vessel_msgs/msg/Detection2D"](
-        header=bag_io.header(0, "camera"),
+        header=bag_messages.header(0, "camera"),
         results=[types["vessel_msgs/msg/ObjectHypothesisWithPose"](
             hypothesis=types["vessel_msgs/msg/ObjectHypothesis"](class_id=c, score=s),
             pose=types["geometry_msgs/msg/PoseWithCovariance"](
@@ -30,14 +30,14 @@ def _params(tmp_path, tracker_block):
 
 
 def test_the_offline_pass_takes_each_box_s_probability_of_being_the_vessel_of_interest(tmp_path):
-    store = bag_io.typestore()
+    store = bag_messages.typestore()
     types = store.types
-    stamp = bag_io.sec_to_ns(1_600_000_000.5)
-    array = types["vessel_msgs/msg/Detection2DArray"](header=bag_io.header(stamp, "camera"), detections=[
+    stamp = bag_messages.sec_to_ns(1_600_000_000.5)
+    array = types["vessel_msgs/msg/Detection2DArray"](header=bag_messages.header(stamp, "camera"), detections=[
         _detection(types, 100.0, [("vessel_of_interest", 0.9)]),
         _detection(types, 300.0, [("vessel", 0.8), ("vessel_of_interest", 0.05)]),  # another boat, surely
     ])
-    with bag_io.BagWriter(tmp_path / "recording") as writer:
+    with bag_writer.BagWriter(tmp_path / "recording") as writer:
         writer.add_topic("/vessel/detections", "vessel_msgs/Detection2DArray")
         writer.write("/vessel/detections", array)
     trained = _params(tmp_path, "    classes: ['*']\n    confidence_class: vessel_of_interest\n")

@@ -16,7 +16,7 @@ pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: build r
 
 from std_msgs.msg import Header
 
-from vessel_common.node_support import sec_to_stamp, stamp_to_sec
+from vessel_common.qos import sec_to_stamp, stamp_to_sec
 from vessel_tools.track import pipeline as pl
 from vessel_tools.track.simulation import LinePath, Scenario, SimVessel, bearing_point
 from vessel_track.fuser_node import fill_world_fields, screen_track_from_msg

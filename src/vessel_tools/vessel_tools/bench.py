@@ -43,7 +43,7 @@ from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.parameter_names import flatten
 from vessel_common.paths import default_data_dir, parse_videos
-from vessel_detect.bag_io import BagReader
+from vessel_detect.bag_reader import BagReader
 from vessel_detect.detector_params import DETECTOR_PARAMETERS, build_detector, merge_values
 from vessel_tools.bench_graph import CAMERA_ACK_TIMEOUT_S, GraphError, GraphSession, graph_figures
 from vessel_tools.bench_report import RATIO_TARGET, format_table, log, machine_info, print_and_save, summary_ms

@@ -37,7 +37,9 @@ from vessel_calib.params import atomic_write_text, load_camera_yaml
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError, VesselError
 from vessel_common.paths import default_data_dir, parse_videos
-from vessel_detect.bag_io import BagReader, ns_of_stamp, recover_bag
+from vessel_detect.bag_messages import ns_of_stamp
+from vessel_detect.bag_reader import BagReader
+from vessel_detect.bag_salvage import recover_bag
 from vessel_detect.replay_detector_node import CSV_COLUMNS
 from vessel_tools import calibrate as calibrate_tool
 from vessel_tools.calib.dataset import TRAIN_VIDEOS, Dataset
@@ -321,7 +323,7 @@ def _wait_for_frames(runner: GraphRunner, watcher: GraphWatcher, video: int, exp
 # Outputs
 # --------------------------------------------------------------------------------------------------------------
 def readable_recording(run: VideoRun, log) -> bool:
-    """Whether a video's recording can be read; a recorder that died is recovered (``bag_io.recover_bag``) first."""
+    """Whether a video's recording can be read; a recorder that died is recovered (``recover_bag``) first."""
     try:
         BagReader(run.recording).close()
         return True

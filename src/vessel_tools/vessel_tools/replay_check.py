@@ -19,9 +19,9 @@ from pathlib import Path
 
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import VesselError
-from vessel_common.node_support import image_qos_profile
 from vessel_common.paths import repo_root
-from vessel_detect import bag_io
+from vessel_common.qos import image_qos_profile
+from vessel_detect import bag_messages, bag_reader, bag_topics
 
 
 def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: float | None = None) -> dict:
@@ -29,8 +29,8 @@ def check(bag: Path, rate: float, image_qos: str = "sensor_data", timeout_s: flo
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    with bag_io.BagReader(bag) as reader:
-        expected = [bag_io.sec_to_ns(t) for t, _ in reader.images()]
+    with bag_reader.BagReader(bag) as reader:
+        expected = [bag_messages.sec_to_ns(t) for t, _ in reader.images()]
     if not expected:
         raise VesselError(f"{bag} has no images")
     domain_id = random.randint(1, 100)
@@ -94,7 +94,7 @@ def _subscribe(node, image_qos: str) -> _Heard:
         heard.received.append(message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec)
         heard.arrival.append(time.monotonic())
 
-    node.create_subscription(CompressedImage, bag_io.DEFAULT_IMAGE_TOPIC, on_image,
+    node.create_subscription(CompressedImage, bag_topics.DEFAULT_IMAGE_TOPIC, on_image,
                              image_qos_profile(image_qos, reliable_depth=10))
     node.create_subscription(
         Clock, "/clock", lambda m: heard.clock.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),

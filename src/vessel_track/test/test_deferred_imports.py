@@ -28,7 +28,7 @@ def test_the_deferred_functions_are_scipy_and_filterpy():
 
 
 def test_a_preload_that_fails_stops_the_node_with_one_line():
-    code = ("import sys\nfrom rclpy.node import Node\nfrom vessel_common.node_support import run_node\n"
+    code = ("import sys\nfrom rclpy.node import Node\nfrom vessel_common.run import run_node\n"
             "sys.exit(run_node(lambda: Node('preload_probe'), ['probe'], preload=['vessel_no_such_module']))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
@@ -56,7 +56,7 @@ def test_a_deferred_import_waits_while_another_thread_imports():
 
 
 def test_the_preload_waits_for_the_import_lock_too():
-    _waits_for_the_import_lock("from vessel_common.node_support import _Preloader",
+    _waits_for_the_import_lock("from vessel_common.run import _Preloader",
                                "_Preloader(['colorsys']).thread", "colorsys")
 
 

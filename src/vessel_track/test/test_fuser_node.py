@@ -40,7 +40,7 @@ def write_params(path, camera_block=None, extra=""):
 
 def screen_tracks(camera, stamp, k, stamp_msg):
     """One image's tracks as the tracker would publish them: a vessel crossing ~180 m out, a sailboat, a bad one."""
-    from vessel_common.node_support import sec_to_stamp
+    from vessel_common.qos import sec_to_stamp
     from vessel_msgs.msg import VesselTrack, VesselTrackArray
     from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
 
@@ -77,7 +77,8 @@ def test_fixes_with_covariance_reach_a_consumer_in_another_process(tmp_path, ros
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
-    from vessel_common.node_support import matched_subscribers, reliable_qos, sec_to_stamp, stamp_to_sec
+    from vessel_common.health import matched_subscribers
+    from vessel_common.qos import reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import VesselTrackArray
     from vessel_tools.track.simulation import challenge_camera
 
@@ -222,9 +223,9 @@ def test_detections_through_tracker_fuser_and_gps_publisher_processes(tmp_path, 
     from sensor_msgs.msg import NavSatFix, NavSatStatus
 
     from vessel_calib import geodesy
-    from vessel_common.node_support import reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_common.parameter_names import flatten
     from vessel_common.parameter_table import part_file_text
+    from vessel_common.qos import reliable_qos, sec_to_stamp, stamp_to_sec
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
     from vessel_tools.track.simulation import vessel_of_interest_scenario
     from vessel_track.parameter_tables import FUSER_PARAMETERS
@@ -397,7 +398,7 @@ def test_a_restarted_fuser_refuses_a_pickled_state_file_and_carries_on_from_its_
 
     from rclpy.parameter import Parameter
 
-    from vessel_common.node_support import sec_to_stamp
+    from vessel_common.qos import sec_to_stamp
     from vessel_common.state_file import VERSION
     from vessel_fixtures.ros_nodes import node_in_context
     from vessel_msgs.msg import VesselTrackArray
@@ -513,7 +514,7 @@ def test_findings_8_10_the_fuser_refuses_invalid_repeated_and_zero_stamps(fuser_
 
 def test_a_replay_restart_still_reaches_the_fuser_with_its_lost_tracks(fuser_node):
     """The tracker reports its old tracks LOST at the restarted (earlier) stamp, seen after it: they go on."""
-    from vessel_common.node_support import sec_to_stamp
+    from vessel_common.qos import sec_to_stamp
     from vessel_msgs.msg import VesselTrack, VesselTrackArray
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig
     from vessel_track.tracker_node import track_to_msg

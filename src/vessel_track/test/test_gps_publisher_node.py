@@ -12,7 +12,7 @@ pytest.importorskip("sensor_msgs.msg", reason="sensor_msgs is not importable: so
 
 
 def _track(**kw):
-    from vessel_common.node_support import sec_to_stamp
+    from vessel_common.qos import sec_to_stamp
 
     base = dict(has_world=True, status=1, latitude=32.703, longitude=-117.233, last_seen=sec_to_stamp(100.0),
                 position_covariance=[25.0, 5.0, 5.0, 4.0], expected_error_m=10.0, is_target=True)

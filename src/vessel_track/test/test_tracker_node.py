@@ -21,7 +21,7 @@ PARAMS = REPO / "config" / "parts" / "tracker.yaml"
 
 
 def detection_array(stamp, boxes, scores, class_id="boat"):
-    from vessel_common.node_support import sec_to_stamp
+    from vessel_common.qos import sec_to_stamp
     from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
     msg = Detection2DArray()
@@ -70,7 +70,7 @@ def ros_graph(start_node, driver):
 def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from vessel_common.node_support import reliable_qos, stamp_to_sec
+    from vessel_common.qos import reliable_qos, stamp_to_sec
     from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
     from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig
@@ -186,7 +186,7 @@ def test_a_standby_tracker_publishes_only_once_promoted(start_node, driver, ask_
     from rcl_interfaces.msg import ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
 
-    from vessel_common.node_support import reliable_qos
+    from vessel_common.qos import reliable_qos
     from vessel_msgs.msg import Detection2DArray, VesselTrackArray
     from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.tracker import MultiTargetTracker, TrackerConfig
@@ -347,7 +347,7 @@ def test_findings_8_10_the_tracker_refuses_invalid_repeated_and_zero_stamps(trac
     A stamp with nanosec >= 1e9 made the next good frame look out of order, a repeated stamp was a second frame,
     and zero and negative stamps were tracked and published.
     """
-    from vessel_common.node_support import stamp_to_sec
+    from vessel_common.qos import stamp_to_sec
     from vessel_msgs.msg import VesselTrack
 
     node, published = tracker_node

@@ -23,8 +23,10 @@ import numpy as np
 from rclpy.node import Node
 
 from vessel_calib.camera_parameters import declare_camera_model
+from vessel_common.health import NodeHealth
 from vessel_common.node_parameters import declare_table
-from vessel_common.node_support import NodeHealth, NodeState, Standby, reliable_qos, stamp_to_sec
+from vessel_common.node_state import NodeState, Standby
+from vessel_common.qos import reliable_qos, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports

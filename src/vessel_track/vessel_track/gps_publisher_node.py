@@ -31,8 +31,10 @@ from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from vessel_calib import geodesy
 from vessel_calib.camera_parameters import declare_camera_model
+from vessel_common.health import NodeHealth
 from vessel_common.node_parameters import declare_table
-from vessel_common.node_support import NodeHealth, Standby, reliable_qos, stamp_to_sec
+from vessel_common.node_state import Standby
+from vessel_common.qos import reliable_qos, stamp_to_sec
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
 from vessel_track.message_checks import (

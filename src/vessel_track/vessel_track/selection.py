@@ -469,8 +469,23 @@ class _Running:
     def ages(self, now: float) -> np.ndarray:
         return now - np.fromiter(self.confidence_stamps, float)
 
+    # The latest score with what it was computed from (the confidences object, the path, the settings). Not a field:
+    # snapshots leave it out. A score is asked for several times a frame for every running and ended track, and
+    # computing it reads the whole history (up to ``history_length``); it changes only when the track is updated.
+    _score_memo = None
+
     def score(self, config: SelectionConfig) -> float:
-        return config.trajectory_score(np.fromiter(self.confidences, float), self.path_m)
+        memo = self._score_memo
+        if memo is None or memo[0] is not self.confidences or memo[1] != self.path_m or memo[2] is not config:
+            score = config.trajectory_score(np.fromiter(self.confidences, float), self.path_m)
+            memo = self._score_memo = (self.confidences, self.path_m, config, score)
+        return memo[3]
+
+    def add_confidence(self, confidence: float, stamp: float) -> None:
+        """One more confidence of the track, at ``stamp``."""
+        self.confidences.append(confidence)
+        self.confidence_stamps.append(stamp)
+        self._score_memo = None
 
     def recent_evidence_ok(self, config: SelectionConfig, now: float) -> bool:
         return config.recent_evidence_ok(np.fromiter(self.confidences, float), self.ages(now))
@@ -482,6 +497,7 @@ class _Running:
         """Add the confidences of a later piece of the same vessel's track after this history's."""
         self.confidences.extend(later.confidences)
         self.confidence_stamps.extend(later.confidence_stamps)
+        self._score_memo = None
 
     def forget_before(self, stamp: float) -> None:
         """Drop the confidences older than ``stamp``: they belong to what the track followed before."""
@@ -615,8 +631,7 @@ class OnlineTargetSelector:
                                        first_stamp=stamp)
                 self._running[tid] = running
             if wt.screen.updated and math.isfinite(wt.screen.confidence):
-                running.confidences.append(float(wt.screen.confidence))
-                running.confidence_stamps.append(stamp)
+                running.add_confidence(float(wt.screen.confidence), stamp)
             if measured:
                 measured_now.add(tid)
                 if running.first_position is None:

@@ -395,6 +395,15 @@ class _Track:
         half = self.size / 2.0
         return np.array([*(self.center - half), *(self.center + half)])
 
+    def recent_confidences(self, count: int) -> list[float]:
+        """The confidences of the latest ``count`` updates, oldest first, read from the history's end.
+
+        Every frame asks this of every track: indexing from the end costs ``count`` reads, where a copy of the
+        history would cost up to ``history_length``.
+        """
+        history = self.history
+        return [history[i][3] for i in range(max(len(history) - count, 0), len(history))]
+
 
 def transition_matrix(dt: float) -> np.ndarray:
     """F of the state (x, vx, y, vy) for a step of ``dt`` seconds (the paper's F with Δ = dt)."""
@@ -798,8 +807,8 @@ class MultiTargetTracker:
         if cfg.confidence_weight <= 0 or confs is None:
             return np.zeros((len(tracks), n_dets))
         p = np.clip(np.asarray(confs, dtype=float), 0.05, 0.95)
-        q = np.array([np.mean([entry[3] for entry in list(t.history)[-cfg.confidence_memory:]] or [t.confidence])
-                      for t in tracks], dtype=float)
+        q = np.array([np.mean(t.recent_confidences(cfg.confidence_memory) or [t.confidence]) for t in tracks],
+                     dtype=float)
         q = np.clip(np.where(np.isfinite(q), q, 0.5), 0.05, 0.95)
         agreement = q[:, None] * p[None, :] + (1.0 - q[:, None]) * (1.0 - p[None, :])
         return cfg.confidence_weight * -2.0 * np.log(2.0 * agreement)

@@ -27,8 +27,9 @@ from vessel_calib.gps_track import GpsTrack
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir, parse_videos, repo_root
-from vessel_detect import bag_io
-from vessel_detect.sources import VideoSource, jpeg_problem, parse_utc
+from vessel_detect import bag_messages, bag_reader, bag_salvage, bag_topics, bag_writer
+from vessel_detect.file_sources import VideoSource, parse_utc
+from vessel_detect.image_source import jpeg_problem
 from vessel_tools.calib.dataset import Dataset
 
 _NS_PER_S = 1_000_000_000
@@ -39,9 +40,9 @@ MAX_LISTED_PROBLEMS = 10
 class BuildOptions:
     """Topic names, frames and rates of the bags (defaults: the project's topics)."""
 
-    image_topic: str = bag_io.DEFAULT_IMAGE_TOPIC
-    camera_fix_topic: str = bag_io.DEFAULT_CAMERA_FIX_TOPIC
-    gps_truth_topic: str = bag_io.DEFAULT_GPS_TRUTH_TOPIC
+    image_topic: str = bag_topics.DEFAULT_IMAGE_TOPIC
+    camera_fix_topic: str = bag_topics.DEFAULT_CAMERA_FIX_TOPIC
+    gps_truth_topic: str = bag_topics.DEFAULT_GPS_TRUTH_TOPIC
     camera_frame_id: str = "camera"
     gps_frame_id: str = "vessel_gps"
     camera_fix_rate_hz: float = 1.0  # 0: only one fix, at the first frame
@@ -127,7 +128,7 @@ class _MessageMerger:
         """Every GPS fix not yet written stamped at or before ``stamp_ns``."""
         while self.gps_index < len(self.gps_ns) and self.gps_ns[self.gps_index] <= stamp_ns:
             i = self.gps_index
-            fix = bag_io.nav_sat_fix(
+            fix = bag_messages.nav_sat_fix(
                 self.gps_ns[i], self.gps_lat[i], self.gps_lon[i], frame_id=self.options.gps_frame_id
             )
             self.writer.write(self.options.gps_truth_topic, fix)
@@ -145,19 +146,20 @@ class _MessageMerger:
                 self.gps_index += 1  # before the video's window
         while self.next_fix_ns is not None and self.next_fix_ns <= stamp_ns:
             self.gps_until(self.next_fix_ns)
-            fix = bag_io.nav_sat_fix(self.next_fix_ns, self.camera_lat, self.camera_lon, options.camera_alt_m,
-                                     frame_id=options.camera_frame_id, sigma_m=options.camera_sigma_m)
+            fix = bag_messages.nav_sat_fix(self.next_fix_ns, self.camera_lat, self.camera_lon, options.camera_alt_m,
+                                           frame_id=options.camera_frame_id, sigma_m=options.camera_sigma_m)
             self.writer.write(options.camera_fix_topic, fix)
             self.result.camera_fixes += 1
             self.next_fix_ns = next(self.fix_stamps, None)
         self.gps_until(stamp_ns)
-        self.writer.write(options.image_topic, bag_io.compressed_image(stamp_ns, data, options.camera_frame_id, "jpeg"))
+        self.writer.write(options.image_topic,
+                          bag_messages.compressed_image(stamp_ns, data, options.camera_frame_id, "jpeg"))
         self.result.frames += 1
         self.result.end_s = stamp_ns / 1e9
 
     def finish(self) -> None:
         """The GPS fixes up to the margin after the last frame."""
-        self.gps_until(bag_io.sec_to_ns(self.result.end_s) + self.margin_ns)
+        self.gps_until(bag_messages.sec_to_ns(self.result.end_s) + self.margin_ns)
 
 
 def _check_time_order(previous: FrameInput | None, frame: FrameInput) -> None:
@@ -189,15 +191,15 @@ def write_bag(
     """
     started = time.monotonic()
     result = BuildResult(name=name, path=path)
-    bag_io.validate_position(camera_lat, camera_lon, "camera position")
+    bag_messages.validate_position(camera_lat, camera_lon, "camera position")
     margin_ns = round(options.gps_margin_s * _NS_PER_S)
-    with bag_io.BagWriter(path, overwrite=options.overwrite) as writer:
+    with bag_writer.BagWriter(path, overwrite=options.overwrite) as writer:
         for key, value in (custom_data or {}).items():
             writer.set_custom_data(key, value)
-        writer.add_topic(options.image_topic, bag_io.COMPRESSED_IMAGE, "sensor_data")
-        writer.add_topic(options.camera_fix_topic, bag_io.NAV_SAT_FIX, "latched")
+        writer.add_topic(options.image_topic, bag_topics.COMPRESSED_IMAGE, "sensor_data")
+        writer.add_topic(options.camera_fix_topic, bag_topics.NAV_SAT_FIX, "latched")
         if gps is not None:
-            writer.add_topic(options.gps_truth_topic, bag_io.NAV_SAT_FIX, "reliable")
+            writer.add_topic(options.gps_truth_topic, bag_topics.NAV_SAT_FIX, "reliable")
         merger = _MessageMerger(writer, result, options, (camera_lat, camera_lon), gps, margin_ns)
         previous: FrameInput | None = None
         for frame in frames:
@@ -222,7 +224,7 @@ def write_bag(
 def track_fixes(track) -> tuple[list[int], list[float], list[float]]:
     """A `GpsTrack`'s fixes as (stamps ns, lats, lons) lists."""
     return (
-        [bag_io.sec_to_ns(float(t)) for t in track.stamps],
+        [bag_messages.sec_to_ns(float(t)) for t in track.stamps],
         [float(v) for v in track.lats],
         [float(v) for v in track.lons],
     )
@@ -272,7 +274,7 @@ def build_from_dataset(
     for video in wanted:
         records = dataset.frames([video])
         frames = [
-            FrameInput(bag_io.sec_to_ns(r.stamp), f"video {video} frame {r.frame}", _load_jpeg(r.path))
+            FrameInput(bag_messages.sec_to_ns(r.stamp), f"video {video} frame {r.frame}", _load_jpeg(r.path))
             for r in records
         ]
         result = write_bag(
@@ -432,9 +434,9 @@ def _parser() -> argparse.ArgumentParser:
     video.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of re-encoded frames (95)")
 
     topics = parser.add_argument_group("topics and messages")
-    topics.add_argument("--image-topic", default=bag_io.DEFAULT_IMAGE_TOPIC)
-    topics.add_argument("--camera-fix-topic", default=bag_io.DEFAULT_CAMERA_FIX_TOPIC)
-    topics.add_argument("--gps-truth-topic", default=bag_io.DEFAULT_GPS_TRUTH_TOPIC)
+    topics.add_argument("--image-topic", default=bag_topics.DEFAULT_IMAGE_TOPIC)
+    topics.add_argument("--camera-fix-topic", default=bag_topics.DEFAULT_CAMERA_FIX_TOPIC)
+    topics.add_argument("--gps-truth-topic", default=bag_topics.DEFAULT_GPS_TRUTH_TOPIC)
     topics.add_argument("--frame-id", default="camera", help="frame_id of images and the camera fix")
     topics.add_argument("--gps-frame-id", default="vessel_gps", help="frame_id of the vessel's GPS fixes")
     topics.add_argument("--camera-fix-rate", type=float, default=1.0, help="camera fixes per second (0: one)")
@@ -545,10 +547,10 @@ def run(argv: list[str] | None = None) -> int:
 
     if args.info:
         for path in args.info:
-            print(bag_io.bag_info(path))
+            print(bag_reader.bag_info(path))
         return 0
     if args.recover:
-        salvage = bag_io.recover_bag(args.recover, args.out, overwrite=args.overwrite)
+        salvage = bag_salvage.recover_bag(args.recover, args.out, overwrite=args.overwrite)
         print(f"recovered {args.out or args.recover}: {salvage.describe()}")
         return 0 if salvage.complete else 1  # 1: messages were lost (cut short, or damaged chunks left out)
     if args.data is not None and args.video is not None:

@@ -24,7 +24,7 @@ from vessel_common.paths import repo_file
 from vessel_detect.detections_csv import CSV_COLUMNS, csv_row, read_detections_csv
 from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import build_detector, detector_config, load_params_file, open_model
-from vessel_detect.sources import VideoSource
+from vessel_detect.file_sources import VideoSource
 from vessel_tools.calib.gps_association import FrameBoxes
 
 #: The generic detector's parameters (its cue and masks are left out).

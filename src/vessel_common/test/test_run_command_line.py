@@ -1,8 +1,8 @@
 """``-p name:=value`` on a node's command line: it wins over the parameter files, and a bad one stops the node.
 
-rcl files ``-p`` assignments under ``/**``, which the node's own block of a parameter file beats: with
-``--params-file config/aitas.yaml`` every ``-p`` of a value that file sets per node was silently ignored,
-misspelt names and out-of-range values included.
+rcl files ``-p`` assignments under ``/**``, which the node's own block of a parameter file beats: with a file that
+sets a value per node, every ``-p`` of that value was silently ignored, misspelt names and out-of-range values
+included. ``run.with_command_line`` hands them to rclpy as ``parameter_overrides``, which rclpy applies last.
 """
 
 from __future__ import annotations
@@ -11,45 +11,69 @@ import subprocess
 
 import pytest
 
-from vessel_common.node_support import command_line_parameters, params_file_parameters
-
 REPO = __import__("pathlib").Path(__file__).resolve().parents[3]
 GRAPH_FILE = REPO / "config" / "aitas.yaml"
 
 
-def test_command_line_assignments_are_read_for_this_node_only():
-    args = ["tracker", "--ros-args", "--params-file", "f.yaml", "-p", "gate_px:=55.0", "--param", "min_hits:=2",
-            "-p", "fuser:max_range_m:=9.0", "-p", "tracker:size_weight:=0.5", "--", "-p", "not_ros:=1"]
-    assert command_line_parameters(args, "tracker") == {"gate_px": "55.0", "min_hits": "2", "size_weight": "0.5"}
-    assert command_line_parameters(["tracker", "-p", "gate_px:=1.0"], "tracker") == {}  # outside --ros-args
+def _own_block(tmp_path, node: str = "tracker"):
+    """A parameter file whose block for ``node`` sets what the tests give with ``-p`` as well."""
+    path = tmp_path / "own_block.yaml"
+    path.write_text(f"/**:\n  ros__parameters:\n    use_sim_time: false\n"
+                    f"{node}:\n  ros__parameters:\n    use_sim_time: false\n    gate_px: 40.0\n    min_hits: 3\n")
+    return path
 
 
-def test_a_parameter_files_names_are_read_from_the_blocks_that_name_this_node(tmp_path):
-    own = tmp_path / "own.yaml"
-    own.write_text("/**:\n  ros__parameters:\n    use_sim_time: false\n    everyone: 1\n"
-                   "tracker:\n  ros__parameters:\n    gate_pxx: 30.0\n    nested:\n      name: 2\n"
-                   "/fuser:\n  ros__parameters:\n    other: 3\n"
-                   "/**/tracker:\n  ros__parameters:\n    anywhere: 4\n"
-                   "/standby_1:\n  tracker:\n    ros__parameters:\n      in_namespace: 5\n")
-    broken = tmp_path / "broken.yaml"
-    broken.write_text("tracker: [unclosed\n")  # rcl refuses such a file itself, before any node code
-    args = ["tracker", "--ros-args", "--params-file", str(own), "--params-file", str(broken)]
-    assert params_file_parameters(args, "/tracker") == {"gate_pxx": str(own), "nested.name": str(own),
-                                                        "anywhere": str(own)}
-    assert params_file_parameters(args, "/standby_1/tracker") == {"anywhere": str(own), "in_namespace": str(own)}
-    assert params_file_parameters(args, "/fuser") == {"other": str(own)}
-    assert params_file_parameters(["tracker", "--params-file", str(own)], "/tracker") == {}  # outside --ros-args
+def _context(ros_env, args):
+    import rclpy
+
+    context = rclpy.context.Context()
+    rclpy.init(context=context, args=args, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    return context
+
+
+@pytest.mark.parametrize("managed", [False, True])
+def test_the_command_line_reaches_rclpy_as_parameter_overrides(ros_env, tmp_path, managed):
+    """In the process: a node class made by ``with_command_line`` gets the ``-p`` values over its own block."""
+    import rclpy
+    from rclpy.lifecycle import LifecycleNode
+    from rclpy.node import Node
+
+    from vessel_common.parameter_declaration import declare_parameter
+    from vessel_common.run import with_command_line
+
+    class Probe(LifecycleNode if managed else Node):
+        """Takes no name, as the project's node classes."""
+
+        def __init__(self, context):
+            super().__init__("tracker", context=context)
+            self.values = [declare_parameter(self, name, default, "probe") for name, default in
+                           (("gate_px", 1.0), ("min_hits", 1), ("size_weight", 1.0))]
+
+    args = ["tracker", "--ros-args", "--params-file", str(_own_block(tmp_path)), "-p", "gate_px:=55.0", "-p",
+            "tracker:min_hits:=2", "-p", "fuser:size_weight:=9.0", "-p", "use_sim_time:=true"]
+    context = _context(ros_env, args)
+    try:
+        node = with_command_line(Probe, args)(context)
+        assert isinstance(node, Probe) and type(node).__name__ == "Probe"
+        assert node.values == [55.0, 2, 1.0]  # fuser's -p is not the tracker's
+        assert node.get_parameter("use_sim_time").value is True
+        node.destroy_node()
+        plain = Probe(context)  # without the runner, rcl's precedence: the node's own block beats a bare -p
+        assert plain.values == [40.0, 2, 1.0] and plain.get_parameter("use_sim_time").value is False
+        plain.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
 
 
 @pytest.mark.ros
 def test_a_command_line_value_beats_the_nodes_own_block_of_the_parameter_file(ros_env, ros_context, start_node,
-                                                                               wait_until):
+                                                                               wait_until, tmp_path):
     import rclpy
     from rcl_interfaces.srv import GetParameters
 
-    assert "gate_px: 40.0" in GRAPH_FILE.read_text()  # the file sets it in the tracker's own block
-    node = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(GRAPH_FILE), "-p",
-                      "gate_px:=55.0", "-p", "min_hits:=2", "-p", "use_sim_time:=true")
+    node = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(GRAPH_FILE), "--params-file",
+                      str(_own_block(tmp_path)), "-p", "gate_px:=55.0", "-p", "min_hits:=2", "-p",
+                      "use_sim_time:=true")
     probe = rclpy.create_node("parameter_probe", context=ros_context)
     client = probe.create_client(GetParameters, "/tracker/get_parameters")
     executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
@@ -60,7 +84,7 @@ def test_a_command_line_value_beats_the_nodes_own_block_of_the_parameter_file(ro
     assert wait_until(future.done, 30, spin=lambda: executor.spin_once(timeout_sec=0.1))
     values = future.result().values
     assert (values[0].double_value, values[1].integer_value, values[2].double_value) == (55.0, 2, 240.0)
-    assert values[3].bool_value  # rclpy declares it before any node code; the file's /** block says false
+    assert values[3].bool_value  # rclpy declares it before any node code; the tracker's block says false
     probe.destroy_node()
 
 
@@ -69,6 +93,7 @@ def test_a_command_line_value_beats_the_nodes_own_block_of_the_parameter_file(ro
     ("gate_px:=-5.0", "parameter gate_px of tracker"),              # out of range
     ("gate_pxx:=50.0", "no parameter gate_pxx (did you mean gate_px?)"),   # misspelt
     ("gate_px:=abc", "parameter gate_px of tracker"),               # wrong type
+    ("use_sim_time:=1", "use_sim_time"),                            # refused by rclpy itself, in Node.__init__
 ])
 def test_a_bad_command_line_value_stops_the_node_with_one_line(ros_env, assignment, message):
     path = REPO / "ros2_ws/install/vessel_track/lib/vessel_track/tracker"
