@@ -112,6 +112,87 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
         assert fixes >= images - 12, f"{fixes} frames out of the fuser for {images} images"
 
 
+def _frames_sent(resume_file) -> int:
+    """Frames the camera noted as sent in its resume file (0 before the first)."""
+    import json
+
+    try:
+        return json.loads(resume_file.read_text())["position"]["frames_sent"]
+    except (FileNotFoundError, ValueError, KeyError):
+        return 0
+
+
+def _kill_when(graph, logs, node: str, frames: int) -> None:
+    """``kill -9`` node ``node`` of a running ``./vessel graph --log-dir logs`` once the camera sent ``frames``."""
+    import time
+
+    deadline = time.monotonic() + 240
+    while _frames_sent(logs / "camera.resume") < frames:  # a file the camera rewrites as frames go: no sleep guess
+        assert time.monotonic() < deadline and graph.poll() is None, "the graph did not get going"
+        time.sleep(0.2)
+    pids = subprocess.run(["pgrep", "-f", str(logs / f"{node}.overrides.yaml")], capture_output=True,
+                          text=True).stdout.split()
+    assert len(pids) == 1, pids
+    subprocess.run(["kill", "-9", pids[0]], check=True)
+
+
+@pytest.mark.ros
+@pytest.mark.data
+@pytest.mark.slow
+@pytest.mark.parametrize("killed", ["camera", "recorder"])
+def test_a_killed_camera_or_recorder_carries_on(data_dir, model_path, ros_env, tmp_path, killed):
+    """``--respawn`` restarts the camera after its last frame and the recorder into the next part of the recording.
+
+    Issue 48: the restarted camera replayed from frame 0 (10 old fixes published again, the tracker reset by stamps
+    going back); a killed recorder failed five times on "OUT exists already", then the graph stopped every node and
+    nothing was recorded after the kill.
+    """
+    import signal
+
+    from vessel_detect.bag_messages import ns_of_stamp
+    from vessel_detect.bag_reader import BagReader
+    from vessel_detect.bag_salvage import recover_bag
+    from vessel_detect.resume_files import recording_parts
+
+    bags = tmp_path / "bags"
+    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
+                            "--videos", "14", "--out", str(bags)], env=ros_env, capture_output=True, text=True,
+                           timeout=300)
+    assert build.returncode == 0, build.stderr[-2000:]
+    logs, recording = tmp_path / "logs", tmp_path / "recording"
+    graph = subprocess.Popen([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_14"),
+                              "--rate", "0" if killed == "camera" else "4", "--exit-at-end", "--respawn", "--record",
+                              str(recording), "--log-dir", str(logs)], env=ros_env, stderr=subprocess.PIPE, text=True)
+    try:
+        _kill_when(graph, logs, killed, 10)
+        _, stderr = graph.communicate(timeout=400)
+    finally:
+        if graph.poll() is None:
+            graph.send_signal(signal.SIGINT)
+            graph.wait(timeout=30)
+    assert graph.returncode == 0, stderr[-3000:]
+    assert f"{killed} exited with status -9: restarting it (restart 1 of at most 5)" in stderr, stderr[-3000:]
+    with BagReader(bags / "video_14") as reader:
+        images = [ns_of_stamp(m.header.stamp) for _, m in reader.read_topic("/camera/image_raw/compressed")]
+    parts = recording_parts(recording)
+    fixes = []
+    for part in parts:
+        if part == recording and killed == "recorder":
+            recover_bag(part)  # what `./vessel bag recover` does with the killed recorder's bag
+        with BagReader(part) as reader:
+            fixes += [ns_of_stamp(m.header.stamp) for _, m in reader.read_topic("/vessel/fix")]
+    assert fixes == sorted(set(fixes)), "a fix recorded twice, or the stamps went back"  # no frame replayed
+    if killed == "camera":
+        camera_log = (logs / "camera.log").read_text(errors="replace")
+        assert "carrying on after the item stamped" in camera_log, camera_log[-2000:]
+        assert parts == [recording] and fixes == images  # every frame once
+    else:
+        assert parts == [recording, tmp_path / "recording.1"]
+        assert "the recording is in 2 bags" in stderr
+        # Lost: what the killed recorder had not flushed (1 s) and what came before its successor subscribed.
+        assert set(fixes) <= set(images) and len(fixes) >= len(images) - 6, (len(fixes), len(images))
+
+
 def test_restarts_back_off():
     from vessel_bringup.graph_nodes import MAX_RESTARTS, restart_delay_s
 

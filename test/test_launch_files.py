@@ -26,20 +26,26 @@ class _Configuration:
         return context[self.name]
 
 
+STAND_INS = {
+    "launch": ("LaunchDescription",),
+    "launch.actions": ("DeclareLaunchArgument", "OpaqueFunction", "RegisterEventHandler", "LogInfo", "Shutdown",
+                       "TimerAction"),
+    "launch.event_handlers": ("OnProcessExit", "OnShutdown"),
+    "launch_ros": (),
+    "launch_ros.actions": ("Node",),
+}
+"""The launch classes the launch file uses, each a ``_Recorded`` of its own name (tests tell them apart by it)."""
+
+
 def _stand_in_modules(monkeypatch):
-    launch = types.ModuleType("launch")
-    launch.LaunchDescription = _Recorded
-    actions = types.ModuleType("launch.actions")
-    actions.DeclareLaunchArgument = _Recorded
-    actions.OpaqueFunction = _Recorded
+    for name, classes in STAND_INS.items():
+        module = types.ModuleType(name)
+        for class_name in classes:
+            setattr(module, class_name, type(class_name, (_Recorded,), {}))
+        monkeypatch.setitem(sys.modules, name, module)
     substitutions = types.ModuleType("launch.substitutions")
     substitutions.LaunchConfiguration = _Configuration
-    launch_ros = types.ModuleType("launch_ros")
-    launch_ros_actions = types.ModuleType("launch_ros.actions")
-    launch_ros_actions.Node = _Recorded
-    for name, module in {"launch": launch, "launch.actions": actions, "launch.substitutions": substitutions,
-                         "launch_ros": launch_ros, "launch_ros.actions": launch_ros_actions}.items():
-        monkeypatch.setitem(sys.modules, name, module)
+    monkeypatch.setitem(sys.modules, "launch.substitutions", substitutions)
 
 
 def _load_graph_launch(monkeypatch):
@@ -58,10 +64,10 @@ def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(mon
     module = _load_graph_launch(monkeypatch)
     entities = module.generate_launch_description().args[0]
     declared = {e.args[0] for e in entities if e.args}
-    assert {"params_file", "calib_file", "source", "rate", "use_sim_time", "respawn", "managed"} <= declared
+    assert {"params_file", "calib_file", "source", "rate", "use_sim_time", "respawn", "managed", "record"} <= declared
     context = {"params_file": str(REPO_ROOT / "config/aitas.yaml"), "calib_file": str(REPO_ROOT /
                "config/aitas_camera.yaml"), "source": "bags/video_13", "rate": "4", "use_sim_time": "auto",
-               "respawn": "false", "managed": "false"}
+               "respawn": "false", "managed": "false", "record": ""}
     nodes = module._nodes(context)
     assert [(n.kwargs["package"], n.kwargs["executable"]) for n in nodes] == [
         (g.package, g.executable) for g in GRAPH_NODES
@@ -92,7 +98,7 @@ def test_the_launched_camera_waits_for_the_detector_unless_told_otherwise(monkey
     params.write_text(yaml.safe_dump({"camera": {"ros__parameters": camera_block}}))
     context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
                "source": "bags/video_13", "rate": rate, "use_sim_time": "auto", "respawn": "false",
-               "managed": "false"}
+               "managed": "false", "record": ""}
     camera = module._nodes(context)[0].kwargs["ros_arguments"]
     assert ("wait_for_subscribers:=1" in camera) == waits
 
@@ -111,7 +117,7 @@ def test_the_launched_cameras_wait_follows_the_shared_block_and_a_bad_rate_stops
     params.write_text(yaml.safe_dump(blocks))
     context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
                "source": "bags/video_13", "rate": rate, "use_sim_time": "auto", "respawn": "false",
-               "managed": "false"}
+               "managed": "false", "record": ""}
     if message is None:
         assert "wait_for_subscribers:=1" not in module._nodes(context)[0].kwargs["ros_arguments"]
     else:
@@ -122,9 +128,70 @@ def test_the_launched_cameras_wait_follows_the_shared_block_and_a_bad_rate_stops
 def test_a_mistyped_parameter_file_stops_the_graph_launch(monkeypatch):
     module = _load_graph_launch(monkeypatch)
     context = {"params_file": "config/aitas_typo.yaml", "calib_file": "config/aitas_camera.yaml", "source": "",
-               "rate": "1.0", "use_sim_time": "auto", "respawn": "false", "managed": "false"}
+               "rate": "1.0", "use_sim_time": "auto", "respawn": "false", "managed": "false", "record": ""}
     with pytest.raises(RuntimeError, match="aitas_typo.yaml is not a file"):
         module._nodes(context)
+
+
+def _handlers(entities) -> dict:
+    """The on-exit handler the launch registered for each node: ``{node: on_exit}``."""
+    return {handler.args[0].kwargs["target_action"]: handler.args[0].kwargs["on_exit"] for handler in entities
+            if type(handler).__name__ == "RegisterEventHandler" and type(handler.args[0]).__name__ == "OnProcessExit"}
+
+
+def test_respawn_treats_every_node_as_the_graph_runner_does(monkeypatch, tmp_path):
+    """``respawn:=true`` restarts a failed node, the camera and the recorder too, as ``./vessel graph --respawn`` does.
+
+    Issue 48: ``respawn:=true`` never restarted the camera (26 of 36 frames lost) and restarted the others however
+    they exited, half a second later; ``./vessel graph --respawn`` restarts every node that fails, with back-off.
+    Now each node (the recorder of ``record:=`` too) gets ``graph_nodes.respawn_files`` (the camera and the recorder
+    a resume file) and is restarted as the graph runner restarts one: on a non-zero exit only, after
+    ``restart_delay_s``, a node like the first; after ``MAX_RESTARTS`` the launch stops.
+    """
+    import shutil
+    from collections import defaultdict
+    from types import SimpleNamespace
+
+    from vessel_bringup.graph_nodes import GRAPH_NODES, MAX_RESTARTS, RECORDER, respawn_files, restart_delay_s
+
+    module = _load_graph_launch(monkeypatch)
+    context = {"params_file": str(REPO_ROOT / "config/aitas.yaml"), "calib_file": str(REPO_ROOT /
+               "config/aitas_camera.yaml"), "source": "bags/video_13", "rate": "4", "use_sim_time": "auto",
+               "respawn": "true", "managed": "false", "record": str(tmp_path / "rec")}
+    entities = module._nodes(context)
+    nodes = [entity for entity in entities if type(entity).__name__ == "Node"]
+    assert [node.kwargs["name"] for node in nodes] == [g.name for g in GRAPH_NODES] + [RECORDER.name]
+    arguments = {node.kwargs["name"]: node.kwargs["ros_arguments"] for node in nodes}
+    state_dir = Path(next(arg for arg in arguments["camera"] if arg.startswith("resume_file:=")).split(":=")[1]).parent
+    try:
+        for node in nodes:
+            name = node.kwargs["name"]
+            assert not node.kwargs.get("respawn"), name  # launch's own respawn restarts on any exit
+            files = dict(arg.split(":=") for arg in arguments[name] if "_file:=" in arg)
+            assert files == respawn_files(name, state_dir), name
+        assert f"output:={tmp_path / 'rec'}" in arguments["recorder"]
+
+        failed = SimpleNamespace(returncode=-9)
+        launch = SimpleNamespace(is_shutdown=False, locals=SimpleNamespace(unique_ros_node_names=defaultdict(int)))
+        for node in nodes:
+            on_exit = _handlers(entities)[node]
+            assert on_exit(SimpleNamespace(returncode=0), launch) is None  # the camera at the end of its source
+            assert on_exit(failed, SimpleNamespace(is_shutdown=True)) is None  # Ctrl-C
+            for restarts in range(MAX_RESTARTS):
+                actions = on_exit(failed, launch)
+                assert type(actions[0]).__name__ == "LogInfo"
+                assert f"restart {restarts + 1} of at most {MAX_RESTARTS}" in actions[0].kwargs["msg"]
+                delay = restart_delay_s(restarts)
+                if delay:
+                    (timer,) = actions[1:]
+                    assert type(timer).__name__ == "TimerAction" and timer.kwargs["period"] == delay
+                    actions = [None, *timer.kwargs["actions"]]
+                again = next(entity for entity in actions[1:] if type(entity).__name__ == "Node")
+                assert again.kwargs == node.kwargs  # the same node with the same files: it carries on
+                on_exit = _handlers(actions[1:])[again]
+            assert [type(action).__name__ for action in on_exit(failed, launch)] == ["LogInfo", "Shutdown"]
+    finally:
+        shutil.rmtree(state_dir, ignore_errors=True)
 
 
 def test_every_launch_file_compiles():

@@ -72,7 +72,7 @@ _BY_LAYER = {
                 vessel_tools.track.error_model_fit vessel_tools.track.simulation
                 vessel_tools.track.tracking_score vessel_tools.track.pipeline_results""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
-               vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart
+               vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart vessel_tools.bench_soak
                vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page
                vessel_tools.parameter_docs
                vessel_tools.calibrate_options vessel_tools.calibrate_pairs vessel_tools.calibrate_box_anchor

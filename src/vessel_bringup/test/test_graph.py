@@ -59,6 +59,63 @@ def test_a_spare_gets_its_nodes_blocks_under_its_namespaced_name(tmp_path, monke
     assert runner.promote_spare("fuser") is None  # no spare left until a new one is started
 
 
+class _ExitedProcess(_FakeProcess):
+    def __init__(self, status):
+        super().__init__()
+        self.returncode = status
+
+    def poll(self):
+        return self.returncode
+
+
+def test_under_respawn_every_node_keeps_its_files_and_a_failed_one_is_restarted_with_them(tmp_path, monkeypatch):
+    """Issue 48: the respawned camera replayed from frame 0 and the respawned recorder failed on "OUT exists already".
+
+    Under ``--respawn`` each node gets the files of ``graph_nodes.respawn_files`` (the launch file's too): the
+    tracker and fuser a state file, the camera and the recorder a resume file, stale ones from an earlier run
+    removed. A node that fails (the camera killed, too) is restarted with the same files; a camera that ended its
+    source (status 0) is the end of the source for ``--exit-at-end``, a killed one is not.
+    """
+    from vessel_bringup.graph_nodes import RECORDER, respawn_files
+
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"camera": {"ros__parameters": {"rate": 0.0}}}))
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "camera.resume").write_text("{}")  # an earlier run's
+    spawned = []
+
+    def fake_spawn(self, node, args, label, append_log, parameters, ignore_sigusr1=False):
+        spawned.append((label, dict(parameters or {})))
+        return graph.RunningNode(node, _FakeProcess(), None, None, parameters)
+
+    monkeypatch.setattr(graph.GraphRunner, "_spawn", fake_spawn)
+    runner = graph.GraphRunner([params], log_dir=logs)
+    args = graph.parse_args(["--source", "bags/video_13", "--respawn", "--record", str(tmp_path / "rec"),
+                             "--no-wait", "--exit-at-end"])
+    wanted = [node.name for node in GRAPH_NODES]
+    graph._start_consumers(args, runner, wanted, False)
+    graph._start_camera(args, runner, wanted, False, graph.StopRequest())
+    assert sorted(runner.running) == sorted(wanted + [RECORDER.name])
+    for name, running in runner.running.items():
+        files = {key: value for key, value in running.parameters.items() if key.endswith("_file")}
+        assert files == respawn_files(name, logs), name
+    assert not (logs / "camera.resume").exists()
+    assert runner.running["recorder"].parameters["output"] == str(tmp_path / "rec")
+
+    for name in ("camera", "recorder"):
+        before = runner.running[name].parameters
+        runner.running[name].process = _ExitedProcess(-9)  # kill -9
+        assert runner.failed() == [name]
+        if name == "camera":
+            assert not graph._source_ended(runner, respawn=True)  # restarted, not the end of the source
+            assert graph._source_ended(runner, respawn=False)
+        assert graph._respawn(runner, [name], {})
+        assert spawned[-1] == (name, before) and runner.running[name].restarts == 1
+    runner.running["camera"].process = _ExitedProcess(0)  # the end of the source
+    assert runner.failed() == [] and graph._source_ended(runner, respawn=True)
+
+
 def test_a_replayed_camera_holds_its_first_frame_for_the_graphs_own_detector(tmp_path):
     """At a rate above 0 the camera's automatic wait is none: the graph makes it wait for its detector.
 

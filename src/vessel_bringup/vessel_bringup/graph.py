@@ -136,7 +136,7 @@ class GraphRunner:
         return file_parameters(self.params_files, name, with_shared)
 
     def start_spare(self, name: str) -> RunningNode:
-        """Start a hot standby of the running node ``name`` (``vessel_common.node_support.Standby``).
+        """Start a hot standby of the running node ``name`` (``vessel_common.node_state.Standby``).
 
         Same executable, parameters and topics, in its own namespace (``/standby_N``) with ``standby:=true``: it
         is discovered and runs its core on every message now, so promoting it costs neither start-up nor

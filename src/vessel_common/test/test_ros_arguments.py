@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from vessel_common.ros_arguments import command_line_parameters, node_name, params_file_parameters, wants_help
+from vessel_common.ros_arguments import command_line_parameters, params_file_parameters, remapped_node_name, wants_help
 
 
 def test_command_line_assignments_are_read_for_this_node_only():
@@ -30,10 +30,13 @@ def test_a_parameter_files_names_are_read_from_the_blocks_that_name_this_node(tm
 
 
 def test_the_node_name_follows_the_node_remaps():
-    assert node_name(["x", "--ros-args", "-r", "__node:=smoke_tracker"], "tracker") == "smoke_tracker"
-    assert node_name(["x", "--ros-args", "--remap", "tracker:__node:=spare"], "tracker") == "spare"
-    assert node_name(["x", "--ros-args", "-r", "fuser:__node:=other", "-r", "/a:=/b"], "tracker") == "tracker"
-    assert node_name(["x", "-r", "__node:=outside"], "tracker") == "tracker"  # not a ROS argument
+    def name(*args):
+        return remapped_node_name(["x", *args], "tracker")
+
+    assert name("--ros-args", "-r", "__node:=smoke_tracker") == "smoke_tracker"
+    assert name("--ros-args", "--remap", "tracker:__node:=spare") == "spare"
+    assert name("--ros-args", "-r", "fuser:__node:=other", "-r", "/a:=/b") == "tracker"
+    assert name("-r", "__node:=outside") == "tracker"  # not a ROS argument
 
 
 def test_help_is_asked_outside_the_ros_arguments_only():

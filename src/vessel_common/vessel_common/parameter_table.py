@@ -1,7 +1,7 @@
 """One table type for every node's parameters: declared, checked, documented and written out from one place.
 
 A node's parameters are a ``ParameterTable`` of ``Param`` rows (name, default, description, range, choices,
-whether a change applies while the node runs). The node declares them from it (``node_support.declare_table``),
+whether a change applies while the node runs). The node declares them from it (``node_parameters.declare_table``),
 checks a value given at start or by ``ros2 param set`` against it, the part files ``config/parts/NODE.yaml`` and
 the table of ``docs/parameters.md`` are written from it, and tests compare those files with it. No ROS import, so
 the tables and what is written from them can be tested anywhere.
@@ -213,7 +213,7 @@ def state_rows() -> tuple[Param, ...]:
 
 
 def standby_row() -> Param:
-    """``standby``: a node that can wait as a hot spare (node_support.Standby applies a change itself)."""
+    """``standby``: a node that can wait as a hot spare (node_state.Standby applies a change itself)."""
     from vessel_common.state_file import STANDBY_DESCRIPTION
 
     return Param("standby", False, STANDBY_DESCRIPTION, live=True)

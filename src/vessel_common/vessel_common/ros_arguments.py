@@ -25,7 +25,7 @@ def ros_arguments(args: Sequence[str], options: tuple[str, ...]) -> Iterator[str
             yield args[i + 1]
 
 
-def node_name(args: Sequence[str], name: str) -> str:
+def remapped_node_name(args: Sequence[str], name: str) -> str:
     """The name a node created as ``name`` gets: the last ``-r __node:=NEW`` (or ``-r name:__node:=NEW``) wins."""
     for rule in ros_arguments(args, ("-r", "--remap")):
         source, _, target = rule.partition(":=")

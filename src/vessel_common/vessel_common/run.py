@@ -28,7 +28,12 @@ from vessel_common.command_line import EXIT_BAD_INPUT
 from vessel_common.errors import VesselError, file_system_problem
 from vessel_common.imports import import_serialized
 from vessel_common.parameter_names import is_rcl_parameter, with_closest
-from vessel_common.ros_arguments import command_line_parameters, node_name, params_file_parameters, wants_help
+from vessel_common.ros_arguments import (
+    command_line_parameters,
+    params_file_parameters,
+    remapped_node_name,
+    wants_help,
+)
 
 NodeFactory = Callable[[], Node]
 
@@ -99,9 +104,9 @@ def with_command_line(node_factory: NodeFactory, args: Sequence[str]) -> NodeFac
     rclpy_class = next(cls for cls in node_factory.__mro__ if cls.__module__.startswith("rclpy."))
 
     class CommandLineOverrides(rclpy_class):
-        def __init__(self, name: str, **kwargs: Any) -> None:
-            given = [*(kwargs.pop("parameter_overrides", None) or ()), *command_line_overrides(args, name)]
-            super().__init__(name, parameter_overrides=given, **kwargs)
+        def __init__(self, node_name: str, **kwargs: Any) -> None:
+            given = [*(kwargs.pop("parameter_overrides", None) or ()), *command_line_overrides(args, node_name)]
+            super().__init__(node_name, parameter_overrides=given, **kwargs)
 
     return type(node_factory.__name__, (node_factory, CommandLineOverrides),
                 {"__module__": node_factory.__module__, "__doc__": node_factory.__doc__})
@@ -109,7 +114,8 @@ def with_command_line(node_factory: NodeFactory, args: Sequence[str]) -> NodeFac
 
 def command_line_overrides(args: Sequence[str], name: str) -> list[Parameter]:
     """The ``-p`` assignments of ``args`` for the node created as ``name``, typed as ``ros2 param set`` types them."""
-    return [_typed(parameter, text) for parameter, text in command_line_parameters(args, node_name(args, name)).items()]
+    given = command_line_parameters(args, remapped_node_name(args, name))
+    return [_typed(parameter, text) for parameter, text in given.items()]
 
 
 def _typed(name: str, text: str) -> Parameter:

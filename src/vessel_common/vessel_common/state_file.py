@@ -53,7 +53,7 @@ STATE_PARAMETERS: dict[str, tuple[Any, str, tuple[float, float] | None]] = {
 STANDBY_DESCRIPTION = ("Hot standby: process every message but publish nothing and write no state file until "
                        "promoted (set to false, or SIGUSR1, which ./vessel graph --hot-standby sends when the active "
                        "node dies). A promoted node stays active.")
-"""The ``standby`` parameter of the tracker, the fuser and the GPS publisher (``node_support.Standby``)."""
+"""The ``standby`` parameter of the tracker, the fuser and the GPS publisher (``vessel_common.node_state.Standby``)."""
 
 
 def settings_fingerprint(*settings: object) -> str:

@@ -185,3 +185,76 @@ def test_ros2_param_set_on_a_recorder_is_refused_with_the_reason(tmp_path, monke
         node.destroy_node()
         rclpy.try_shutdown(context=context)
     assert (tmp_path / "bag" / "metadata.yaml").is_file()
+
+
+def test_a_restarted_recorder_continues_into_the_next_part_and_the_killed_ones_bag_is_recoverable(
+        tmp_path, ros_env, ros_context):
+    """A killed recorder is restarted into ``OUT.1``; ``OUT`` stays as it was, for ``bag recover``.
+
+    With ``./vessel graph --respawn`` a killed recorder failed five times on "OUT exists already", then the graph
+    stopped every node and nothing was recorded after the kill. Started again with the same ``output`` and
+    ``resume_file``, it records into ``OUT.1``; ``OUT``, left by the killed one, stays as it was and ``bag recover``
+    makes it readable: the two parts hold every message once.
+    """
+    from vessel_detect.bag_salvage import recover_bag, salvage_mcap
+    from vessel_detect.resume_files import recording_parts
+
+    node = rclpy.create_node("recorder_restart_publisher", context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    fix_pub = node.create_publisher(NavSatFix, "/vessel/fix", QoSProfile(depth=100,
+                                                                         reliability=ReliabilityPolicy.RELIABLE))
+    output, resume_file = tmp_path / "recording", tmp_path / "state" / "recorder.resume"
+    args = [str(RECORDER_EXE), "--ros-args", "-p", f"output:={output}", "-p", "topics:=['/vessel/fix']", "-p",
+            "discovery_period_s:=0.1", "-p", "flush_period_s:=0.05", "-p", f"resume_file:={resume_file}"]
+
+    def readers() -> set:
+        return {bytes(info.endpoint_gid) for info in node.get_subscriptions_info_by_topic("/vessel/fix")}
+
+    def publish(ks) -> None:
+        for k in ks:
+            fix = NavSatFix(latitude=32.7 + k * 1e-5, longitude=-117.23)
+            fix.header.stamp = to_time(T0 + k * 250_000_000)
+            fix_pub.publish(fix)
+
+    def recorded(bag) -> int:
+        try:
+            return len(salvage_mcap(bag).messages)
+        except Exception:  # not written yet
+            return 0
+
+    first = subprocess.Popen(args, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    second = None
+    try:
+        assert wait(lambda: fix_pub.get_subscription_count() > 0, executor, 30), "the recorder never subscribed"
+        before = readers()
+        publish(range(5))
+        assert wait(lambda: recorded(output) == 5, executor, 30), "the first part never held the 5 fixes"
+        first.kill()
+        first.wait()
+        second = subprocess.Popen(args, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        # Its reader is a new one (the killed one's may be known for a while yet), matched by this publisher.
+        subscribed = wait(lambda: second.poll() is not None or (readers() - before)
+                          and fix_pub.get_subscription_count() == len(readers()), executor, 30)
+        assert second.poll() is None, second.stdout.read()  # it used to stop on "OUT exists already"
+        assert subscribed, "the restarted recorder never subscribed"
+        publish(range(5, 10))
+        assert wait(lambda: recorded(tmp_path / "recording.1") == 5, executor, 30), second.stdout
+        second.send_signal(signal.SIGINT)
+        log, _ = second.communicate(timeout=30)
+    finally:
+        for process in (first, second):
+            if process is not None and process.poll() is None:
+                process.kill()
+                process.wait()
+        executor.shutdown()
+        node.destroy_node()
+    assert second.returncode == 0, log
+    assert f"continuing the recording {output} into {output}.1" in log and "Traceback" not in log
+    assert recording_parts(output) == [output, tmp_path / "recording.1"]
+    with bag_reader.BagReader(tmp_path / "recording.1") as reader:  # closed by SIGINT: readable as it is
+        later = [bag_messages.sec_to_ns(t) for t in reader.fixes("/vessel/fix").stamps]
+    recover_bag(output)  # what `./vessel bag recover` does with the killed recorder's bag
+    with bag_reader.BagReader(output) as reader:
+        earlier = [bag_messages.sec_to_ns(t) for t in reader.fixes("/vessel/fix").stamps]
+    assert earlier + later == [T0 + k * 250_000_000 for k in range(10)]

@@ -119,6 +119,9 @@ class RecorderNode(Node):
         self._last_log_ns = 0
         self._untimed: list[tuple[TopicPlan, bytes]] = []
         steady_timer(self, self.discovery_period_s, self._discover)
+        self._flushed = 0
+        if self.flush_period_s > 0:  # what came before a lull is on disk too, not only once the next message comes
+            steady_timer(self, self.flush_period_s, self._flush)
         self._discover()
         self.get_logger().info(
             f"recording {', '.join(p.name for p in self.plans)} into {self.output} (SIGINT to stop and close)"
@@ -225,6 +228,16 @@ class RecorderNode(Node):
         if time.monotonic() - self._last_progress > 5.0:
             self._last_progress = time.monotonic()
             self.health.set_value("counts", ", ".join(f"{p.name}={p.count}" for p in self.plans if p.subscribed))
+
+    def _flush(self) -> None:
+        """Put what was written since the last flush on disk (a recorder killed then loses nothing of it)."""
+        if self._closed or self.writer.message_count == self._flushed:
+            return
+        self._flushed = self.writer.message_count
+        try:
+            self.writer.flush()
+        except OSError as error:
+            self.health.problem("write_failed", f"cannot flush {self.output}: {error.strerror or error}")
 
     def close(self) -> None:
         """Finish the bag (called by run_node on SIGINT/SIGTERM and at shutdown)."""

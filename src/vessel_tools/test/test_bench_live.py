@@ -36,11 +36,38 @@ def test_figures_count_drops_and_losses_and_fit_memory_growth():
     end = {"frames_sent": 1600, "frames_received": 1580, "frames_processed": 220, "dropped_frames": 1350,
            "fixes": 210}
     samples = {"detector": [(0.0, 300.0), (60.0, 301.0), (120.0, 302.0)]}
-    result = bench_live._figures(args, "frames/13", start, end, samples, [0.4, 0.5], [0.4], [0.5], 60.0)
+    per_minute = [{"minute": 1, "p50": 400.0, "p95": 450.0, "n": 1}, {"minute": 2, "p50": 500.0, "p95": 520.0, "n": 1}]
+    result = bench_live._figures(args, "frames/13", start, end, samples, [0.4, 0.5], [0.4], [0.5], 60.0,
+                                 per_minute=per_minute, live_tracks=[(30.0, 11.0), (60.0, 14.0)])
     assert result["frames_offered"] == 1500 and result["frames_processed"] == 200
     assert result["frames_dropped_by_detector"] == 1290 and result["frames_lost_in_transport"] == 10
     assert result["memory"]["detector"]["growth_mb_per_min"] == pytest.approx(1.0)
-    assert "dropped by the detector 1290" in bench_live.format_report(result)
+    assert result["memory"]["detector"]["start_mb"] == 300.0 and result["memory"]["detector"]["end_mb"] == 302.0
+    assert result["latency_last_over_first_p50"] == pytest.approx(1.25)
+    assert result["latency_per_minute_ms"] == per_minute and result["live_tracks_s"] == [[30.0, 11.0], [60.0, 14.0]]
+    report = bench_live.format_report(result)
+    assert "dropped by the detector 1290" in report
+    assert "first minute p50/p95 400/400 ms, last minute 500/500 ms (last/first p50 1.25)" in report
+    assert "per minute p50/p95, ms: 1: 400/450, 2: 500/520" in report and "live tracks per 30 s: 11 14" in report
+    assert "detector         300.0 ->   302.0 (+1.00/min)" in report
+
+
+def test_latency_is_reported_for_every_minute_of_the_window():
+    watcher = SimpleNamespace(log=ArrivalLog((bench_live.IMAGE_TOPIC, bench_live.FIX_TOPIC)))
+    minute = 60_000_000_000
+    for stamp, image_ns, delay_ns in ((1, 10 * 10**9, 100_000_000), (2, minute + 5 * 10**9, 300_000_000),
+                                      (3, minute + 9 * 10**9, 500_000_000), (4, 2 * minute + 10**9, 200_000_000)):
+        watcher.log.add(bench_live.IMAGE_TOPIC, stamp, image_ns, image_ns)
+        watcher.log.add(bench_live.FIX_TOPIC, stamp, image_ns + delay_ns, image_ns + delay_ns)
+    minutes = bench_live._latency_by_minute(watcher, 0, 2 * minute + 30 * 10**9)
+    assert [m["minute"] for m in minutes] == [1, 2, 3] and [m["n"] for m in minutes] == [1, 2, 1]
+    assert [m["p50"] for m in minutes] == pytest.approx([100.0, 400.0, 200.0])
+
+
+def test_reported_values_are_read_from_the_named_node_only():
+    diagnostics = {"/tracker": {"live_tracks": "42", "count.frames": "7"}, "fuser": {"tracks": "9"}}
+    assert bench_live._value(diagnostics, "tracker", "live_tracks") == 42.0
+    assert math.isnan(bench_live._value(diagnostics, "fuser", "live_tracks"))
 
 
 @pytest.mark.parametrize("bad", [["--fps", "0"], ["--minutes", "nan"], ["--warmup-s", "-1"]])

@@ -7,9 +7,12 @@ nodes' own ``/diagnostics`` counters and an in-process watcher:
 
 - frames offered (the camera's ``frames_sent``), received by the detector, processed, and dropped (the
   detector's ``dropped_frames``: replaced before it took them; the rest of the gap is lost in transport);
-- latency from an image's arrival to the ``/vessel/fix`` of the same stamp, p50 and p95, for the first and the
-  last minute (a growing queue shows as a growing latency);
-- memory (RSS) of every node at the start and at the end, and its growth per minute over the run.
+- latency from an image's arrival to the ``/vessel/fix`` of the same stamp, p50 and p95, over the run, for the
+  first and the last minute and for every minute (a growing queue or a growing cost per frame shows as a growing
+  latency);
+- memory (RSS) of every node at the start and at the end, sampled every 30 s, and its growth per minute;
+- the tracker's live tracks (its ``live_tracks`` on ``/diagnostics``) at each sample: the cost of a frame in the
+  tracker, the fuser and the GPS publisher grows with them.
 
     ./vessel bench live --minutes 10 --out out/bench/live.json
 """
@@ -89,6 +92,26 @@ def _counter(diagnostics: dict[str, dict[str, str]], node: str, key: str) -> int
     return 0
 
 
+def _value(diagnostics: dict[str, dict[str, str]], node: str, key: str) -> float:
+    """A figure a node reports with ``set_value`` (NaN when it has not reported it)."""
+    for name, values in diagnostics.items():
+        if name.strip("/").split("/")[-1] == node and key in values:
+            try:
+                return float(values[key])
+            except ValueError:
+                return math.nan
+    return math.nan
+
+
+def _latency_by_minute(watcher, since_ns: int, until_ns: int) -> list[dict]:
+    """Latency (``summary_ms``) of the images that arrived in each minute from ``since_ns`` (the last one partial)."""
+    minute_ns = 60_000_000_000
+    out = []
+    for index, start in enumerate(range(since_ns, until_ns, minute_ns)):
+        out.append({"minute": index + 1, **summary_ms(_latencies_s(watcher, start, min(start + minute_ns, until_ns)))})
+    return out
+
+
 def _latencies_s(watcher, since_ns: int, until_ns: int) -> list[float]:
     images = watcher.log.by_topic[IMAGE_TOPIC]
     out = []
@@ -107,6 +130,7 @@ def run(args: argparse.Namespace) -> dict:
     session = GraphSession(folder, params, frames_in_bag=0, warmup=0, domain_id=_domain_id(), log_dir=log_dir,
                            frame_timeout_s=60.0)
     samples: dict[str, list[tuple[float, float]]] = {}
+    live_tracks: list[tuple[float, float]] = []
     try:
         session.start()
         watcher = session.watcher
@@ -125,6 +149,7 @@ def run(args: argparse.Namespace) -> dict:
         while time.monotonic() < end:
             if time.monotonic() >= next_sample:
                 _sample_rss(session.monitor.pids, time.monotonic() - started, samples)
+                live_tracks.append((time.monotonic() - started, _value(watcher.diagnostics, "tracker", "live_tracks")))
                 next_sample += SAMPLE_EVERY_S
                 elapsed = time.monotonic() - started - args.warmup_s
                 log(f"{elapsed / 60:.1f} min: {watcher.log.count(IMAGE_TOPIC)} images, "
@@ -137,12 +162,15 @@ def run(args: argparse.Namespace) -> dict:
         watcher.spin(3.0)  # the last frames' diagnostics and fixes
         counters_end = {key: _counter(watcher.diagnostics, node, key) for node, key in _COUNTERS}
         _sample_rss(session.monitor.pids, time.monotonic() - started, samples)
+        live_tracks.append((time.monotonic() - started, _value(watcher.diagnostics, "tracker", "live_tracks")))
         minute_ns = 60_000_000_000
         return _figures(args, folder, counters_start, counters_end, samples,
                         all_latencies=_latencies_s(watcher, measure_from_ns, measure_to_ns),
                         first_minute=_latencies_s(watcher, measure_from_ns, measure_from_ns + minute_ns),
                         last_minute=_latencies_s(watcher, measure_to_ns - minute_ns, measure_to_ns),
-                        seconds=(measure_to_ns - measure_from_ns) / 1e9)
+                        seconds=(measure_to_ns - measure_from_ns) / 1e9,
+                        per_minute=_latency_by_minute(watcher, measure_from_ns, measure_to_ns),
+                        live_tracks=live_tracks)
     finally:
         session.stop()
 
@@ -160,14 +188,16 @@ _COUNTERS = (("camera", "frames_sent"), ("detector", "frames_received"), ("detec
 
 
 def _figures(args, folder, counters_start, counters_end, samples, all_latencies, first_minute, last_minute,
-             seconds) -> dict:
+             seconds, per_minute=(), live_tracks=()) -> dict:
     delta = {key: counters_end[key] - counters_start[key] for key in counters_end}
     memory = {}
     for name, values in samples.items():
         t = np.array([v[0] for v in values])
         mb = np.array([v[1] for v in values])
         slope = float(np.polyfit(t / 60.0, mb, 1)[0]) if len(values) >= 3 else float("nan")
-        memory[name] = {"start_mb": float(mb[0]), "end_mb": float(mb[-1]), "growth_mb_per_min": slope}
+        memory[name] = {"start_mb": float(mb[0]), "end_mb": float(mb[-1]), "growth_mb_per_min": slope,
+                        "samples_s_mb": [[float(a), float(b)] for a, b in values]}
+    first, last = summary_ms(first_minute), summary_ms(last_minute)
     offered = delta["frames_sent"]
     return {
         "source": str(folder), "fps": args.fps, "minutes_measured": seconds / 60.0,
@@ -180,8 +210,11 @@ def _figures(args, folder, counters_start, counters_end, samples, all_latencies,
         "processed_per_s": delta["frames_processed"] / seconds if seconds > 0 else float("nan"),
         "offered_per_s": offered / seconds if seconds > 0 else float("nan"),
         "latency_image_to_fix_ms": summary_ms(all_latencies),
-        "latency_first_minute_ms": summary_ms(first_minute),
-        "latency_last_minute_ms": summary_ms(last_minute),
+        "latency_first_minute_ms": first,
+        "latency_last_minute_ms": last,
+        "latency_last_over_first_p50": last["p50"] / first["p50"] if first["n"] and last["n"] else float("nan"),
+        "latency_per_minute_ms": list(per_minute),
+        "live_tracks_s": [[float(a), float(b)] for a, b in live_tracks],
         "memory": memory,
         "machine": machine_info(),
     }
@@ -191,15 +224,23 @@ def format_report(result: dict) -> str:
     """The figures as text."""
     lat = result["latency_image_to_fix_ms"]
     first, last = result["latency_first_minute_ms"], result["latency_last_minute_ms"]
+    nan = float("nan")
+    per_minute = ", ".join(f"{m['minute']}: {m.get('p50', nan):.0f}/{m.get('p95', nan):.0f}"
+                           for m in result.get("latency_per_minute_ms", []))
+    tracks = [n for _, n in result.get("live_tracks_s", [])]
     lines = [
         f"live stream {result['source']} at {result['fps']:g} frames/s, {result['minutes_measured']:.1f} min measured",
         f"  frames offered {result['frames_offered']} ({result['offered_per_s']:.1f}/s), received by the detector "
         f"{result['frames_received_by_detector']}, processed {result['frames_processed']} "
         f"({result['processed_per_s']:.2f}/s), dropped by the detector {result['frames_dropped_by_detector']}, "
         f"lost in transport {result['frames_lost_in_transport']}; fixes {result['fixes']}",
-        f"  latency image -> fix: p50 {lat.get('p50', float('nan')):.0f} ms, p95 {lat.get('p95', float('nan')):.0f} "
-        f"ms over {lat.get('n', 0)} fixes; first minute p50 {first.get('p50', float('nan')):.0f} ms, last minute "
-        f"p50 {last.get('p50', float('nan')):.0f} ms",
+        f"  latency image -> fix: p50 {lat.get('p50', nan):.0f} ms, p95 {lat.get('p95', nan):.0f} ms over "
+        f"{lat.get('n', 0)} fixes",
+        f"  first minute p50/p95 {first.get('p50', nan):.0f}/{first.get('p95', nan):.0f} ms, last minute "
+        f"{last.get('p50', nan):.0f}/{last.get('p95', nan):.0f} ms (last/first p50 "
+        f"{result.get('latency_last_over_first_p50', nan):.2f})",
+        f"  per minute p50/p95, ms: {per_minute or 'none'}",
+        f"  tracker live tracks per 30 s: {' '.join(f'{n:.0f}' for n in tracks) or 'not reported'}",
         "  memory (RSS, MB) start -> end (growth per minute):",
     ]
     for name, m in sorted(result["memory"].items()):

@@ -257,7 +257,7 @@ PART_OPTIONS = ("data", "videos", "label_passes", "pairs_csv", "gps", "max_gap_s
 
 
 def calibrate_parameters() -> ParameterTable:
-    """calibrate's main options as the rows of a parameter table, written from its argparse options.
+    """The main options of calibrate as the rows of a parameter table, written from its argparse options.
 
     The tool is not a node, but takes ``--ros-args -p`` and a ``calibrate:`` block of a parameter file; its part
     file comes from the same option definitions as ``--help``, so the two cannot drift.

@@ -82,7 +82,7 @@ def report(health, refusals) -> None:
 
 
 def stamp_seconds(stamp) -> float:
-    """Seconds of a ``builtin_interfaces/Time`` (as ``node_support.stamp_to_sec``)."""
+    """Seconds of a ``builtin_interfaces/Time`` (as ``vessel_common.qos.stamp_to_sec``)."""
     return int(stamp.sec) + int(stamp.nanosec) * 1e-9
 
 

@@ -53,7 +53,7 @@ def params_file_problem(argv: Sequence[str] | None) -> str | None:
 
 
 def main_with_checks(node_class, argv: Sequence[str] | None = None, preload: Sequence[str] = ()) -> int:
-    """Check ``--params-file`` arguments, then run the node with ``vessel_common.node_support.run_node``."""
+    """Check ``--params-file`` arguments, then run the node with ``vessel_common.run.run_node``."""
     from vessel_common.run import run_node
 
     args = list(sys.argv if argv is None else argv)
