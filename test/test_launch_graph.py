@@ -75,6 +75,72 @@ def test_the_readme_launch_line_publishes_fixes_at_the_rate_given(managed, ros_e
     time.sleep(0.5)
 
 
+def _kill_child(launch: subprocess.Popen, node: str) -> None:
+    """``kill -9`` the launched process of node ``node`` (a child of ``ros2 launch``)."""
+    children = subprocess.run(["pgrep", "-P", str(launch.pid)], capture_output=True, text=True).stdout.split()
+    pids = [pid for pid in children if f"__node:={node}\0" in
+            __import__("pathlib").Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+    assert len(pids) == 1, (node, pids)
+    subprocess.run(["kill", "-9", pids[0]], check=True)
+
+
+@pytest.mark.parametrize("managed", ["false", "true"])
+def test_respawn_restarts_a_killed_camera_and_recorder_which_carry_on(managed, ros_env, ros_context, video_bag,
+                                                                     model_path, tmp_path, wait_until, interrupt):
+    """Issue 48: ``respawn:=true`` never restarted the camera (26 of 36 frames lost), and had no recorder.
+
+    The camera killed after 8 fixes carries on after its last frame, the recorder killed after 16 into ``RECORD.1``:
+    from the first fix on, every frame's fix comes once, in order. A managed camera is configured and activated
+    again.
+    """
+    reason = _launch_available()
+    if reason:
+        pytest.skip(reason)
+    import rclpy
+    from sensor_msgs.msg import NavSatFix
+
+    from vessel_common.qos import reliable_qos
+    from vessel_detect.bag_messages import ns_of_stamp
+    from vessel_detect.bag_reader import BagReader
+    from vessel_detect.resume_files import recording_parts
+
+    repo = __import__("pathlib").Path(__file__).resolve().parents[1]
+    recording = tmp_path / "recording"
+    log = open(tmp_path / "launch.log", "w")
+    launch = subprocess.Popen(
+        ["ros2", "launch", "vessel_bringup", "vessel_graph.launch.py", f"params_file:={repo}/config/aitas.yaml",
+         f"calib_file:={repo}/config/aitas_camera.yaml", f"source:={video_bag}", "rate:=4.0", "respawn:=true",
+         f"record:={recording}", f"managed:={managed}"], env=ros_env, stdout=log, stderr=subprocess.STDOUT,
+        start_new_session=True)
+    probe = rclpy.create_node("launch_probe", context=ros_context)
+    fixes: list[int] = []
+    probe.create_subscription(NavSatFix, "/vessel/fix", lambda fix: fixes.append(ns_of_stamp(fix.header.stamp)),
+                              reliable_qos(100))
+    executor = rclpy.executors.SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe)
+    with BagReader(video_bag) as reader:
+        images = [ns_of_stamp(m.header.stamp) for _, m in reader.read_topic("/camera/image_raw/compressed")]
+    try:
+        for node, after in (("camera", 8), ("recorder", 16)):
+            assert wait_until(lambda: len(fixes) >= after or launch.poll() is not None, 180,  # noqa: B023
+                              spin=lambda: executor.spin_once(timeout_sec=0.1)), "the graph did not get going"
+            _kill_child(launch, node)
+        wait_until(lambda: fixes and fixes[-1] == images[-1] or launch.poll() is not None, 240,
+                   spin=lambda: executor.spin_once(timeout_sec=0.1))
+    finally:
+        probe.destroy_node()
+        interrupt(launch, 30.0)
+        log.close()
+    output = (tmp_path / "launch.log").read_text(errors="replace")
+    for node in ("camera", "recorder"):
+        assert f"[graph] {node} exited with status -9: restarting it (restart 1 of at most 5)" in output, output[-3000:]
+    assert "there are now at least 2 nodes" not in output
+    assert fixes == images[images.index(fixes[0]):], output[-3000:]  # none lost or sent twice after the first
+    assert recording_parts(recording) == [recording, tmp_path / "recording.1"]
+    with BagReader(tmp_path / "recording.1") as reader:
+        assert reader.message_count("/vessel/fix") > 0
+
+
 def test_a_mistyped_parameter_file_stops_the_launch(ros_env, tmp_path):
     reason = _launch_available()
     if reason:

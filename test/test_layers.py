@@ -34,6 +34,7 @@ ROS_MODULES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "builtin_in
 _BY_LAYER = {
     "common": """vessel_common vessel_common.errors vessel_common.imports vessel_common.paths vessel_common.state_file
                  vessel_common.command_line vessel_common.parameter_names vessel_common.parameter_table
+                 vessel_common.input_gaps
                  vessel_common.ros_arguments
                  vessel_calib vessel_calib.geodesy
                  vessel_detect vessel_track vessel_tools""",

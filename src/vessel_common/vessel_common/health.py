@@ -15,6 +15,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from vessel_common.input_gaps import InputGaps
+
 
 def steady_timer(node: Node, period_s: float, callback: Callable[[], None]):
     """A timer on the steady clock, whatever ``use_sim_time`` says.
@@ -64,6 +66,7 @@ class NodeHealth:
         self._status_message = "running"
         self._lock = threading.Lock()
         self._watched: list = []
+        self._input_gaps = InputGaps()
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = steady_timer(node, period_s, self.publish)  # the reports carry the node's time
 
@@ -110,6 +113,22 @@ class NodeHealth:
         """Count an event that needs no log line (e.g. frames processed)."""
         with self._lock:
             self._counts[kind] = self._counts.get(kind, 0) + amount
+
+    def observe_input(self, stamp_s: float) -> None:
+        """Count the frames missing before this input stamp as ``frames_missing_upstream``.
+
+        A node before this one died and was restarted, or dropped them. An event, not a fault: the status stays.
+        """
+        missing = self._input_gaps.observe(stamp_s)
+        if missing:
+            self.count("frames_missing_upstream", missing)
+            self.set_value("last_input_gap_s", self._input_gaps.last_gap_s)
+
+    def restore_counts(self, counts: dict[str, int]) -> None:
+        """Carry on counting from ``counts`` (a restarted node's, from its state file)."""
+        with self._lock:
+            for kind, value in counts.items():
+                self._counts[kind] = self._counts.get(kind, 0) + int(value)
 
     def set_value(self, key: str, value: Any) -> None:
         """Report a figure (latency, frames sent, progress) in the next diagnostics message."""

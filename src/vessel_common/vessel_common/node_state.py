@@ -30,7 +30,8 @@ def _declared(node: Node, name: str, default: Any, description: str, bounds=None
 class NodeState:
     """A node's ``state_file``: resume the core at the first message, snapshot it every ``state_period_s``.
 
-    ``core`` has ``snapshot()`` (its state as plain data) and ``restore(state)``. Failures to write are counted
+    ``core`` has ``snapshot()`` (its state as plain data) and ``restore(state)``; the node's counters are saved with
+    it, so a restarted node's /diagnostics carry on from where they were. Failures to write are counted
     (``state_not_saved``) and never stop the node; a file refused as not a snapshot of this node, schema and version
     is one warning (``state_file_refused``) and a cold start.
     """
@@ -57,7 +58,7 @@ class NodeState:
         holds_this_message = False
         if state is not None:
             try:
-                core.restore(state)
+                _restore(core, self._health, state)
             except (KeyError, TypeError, ValueError, AttributeError, VesselError) as error:
                 what = self.file.refuse(f"it does not fit this node ({error})")
             else:
@@ -74,10 +75,18 @@ class NodeState:
         if self.file is None or not self.file.due(stamp):
             return
         try:
-            self.file.save(stamp, core.snapshot())
+            self.file.save(stamp, {"core": core.snapshot(), "counts": self._health.counts})
         except (OSError, VesselError) as error:
             self._health.problem("state_not_saved", f"the state file could not be written ({error}); a restart "
                                  "would start cold: check state_file's folder")
+
+
+def _restore(core, health: NodeHealth, state) -> None:
+    """The core as the snapshot holds it, and the counters the node had: its /diagnostics carry on, not from zero."""
+    if not isinstance(state, dict) or set(state) != {"core", "counts"}:
+        raise ValueError("a snapshot holds the node's core and its counters")
+    core.restore(state["core"])
+    health.restore_counts({str(kind): int(count) for kind, count in dict(state["counts"]).items()})
 
 
 class Standby:

@@ -37,7 +37,7 @@ from vessel_common.errors import VesselError
 from vessel_common.health import NodeHealth, steady_timer
 from vessel_common.lifecycle import PhasedLifecycle, release_publisher
 from vessel_common.node_parameters import declare_table
-from vessel_common.qos import SENSOR_DATA_QOS, image_qos_profile, reliable_qos
+from vessel_common.qos import SENSOR_DATA_QOS, image_qos_profile, reliable_qos, stamp_to_sec
 from vessel_common.run import main_for
 from vessel_detect.detector import Detections, annotate
 from vessel_detect.detector_params import DETECTOR_PARAMETERS, NODE_NAME, build_detector, detector_config
@@ -202,6 +202,7 @@ class _DetectorPhases:
         if queue is None:
             return
         self.health.count("frames_received")
+        self.health.observe_input(stamp_to_sec(message.header.stamp))
         dropped = queue.put(kind, message, time.monotonic())
         if dropped:
             self.health.count("dropped_frames", dropped)

@@ -186,3 +186,26 @@ def test_findings_8_10_one_fix_per_stamp_and_none_stamped_zero_or_negative(gps_n
     send(50, _track_message("T1", stamp_s=50))  # a replay restarted
     assert [f.header.stamp.sec for f in fixes] == [100, 50] and gps_node.counts()["stamp_backwards"] == 1
     assert all(f.header.stamp.sec > 0 for f in fixes)
+
+
+def test_frames_a_restart_upstream_lost_are_counted(monkeypatch, ros_context):
+    """A fuser killed and restarted leaves a gap in the stamps the GPS publisher gets: counted, the status stays."""
+    pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
+    import rclpy.parameter
+    from vessel_fixtures.ros_nodes import node_in_context
+    from vessel_msgs.msg import VesselTrackArray
+    from vessel_track.gps_publisher_node import GpsPublisherNode
+
+    builtin = [rclpy.parameter.Parameter("camera.builtin_calibration", value=True)]
+    node = node_in_context(monkeypatch, ros_context, GpsPublisherNode, builtin)
+    try:
+        node.fix_publisher.publish = lambda fix: None
+        for sec in [100 + 4 * k for k in range(12) if k not in (8, 9)]:  # two frames never came
+            message = VesselTrackArray()
+            message.header.stamp.sec = sec
+            message.tracks = [_track_message("T1", stamp_s=sec)]
+            node.on_tracks(message)
+        counts = node.health.counts
+        assert counts.get("frames_missing_upstream") == 2 and counts.get("frames") == 10, counts
+    finally:
+        node.destroy_node()

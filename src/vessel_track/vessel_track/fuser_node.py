@@ -188,6 +188,7 @@ class FuserNode(Node):
         if publishing:
             self.publisher.publish(out)
         self._report(out)
+        self.health.observe_input(stamp)
         if publishing:
             self.state.save(stamp, self.core)
 

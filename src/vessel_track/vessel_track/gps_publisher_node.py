@@ -186,6 +186,7 @@ class GpsPublisherNode(Node):
         if previous is not None and stamp < previous:
             self.health.problem("stamp_backwards", "track stamps went backwards (replay restarted?)")
         self._last_stamp = stamp
+        self.health.observe_input(stamp)
         tracks, refusals = checked_tracks(msg.tracks, msg.header.stamp, previous, world=True)
         report(self.health, refusals)
         self.health.count("frames")

@@ -212,6 +212,7 @@ class TrackerNode(Node):
         if refusal is not None:
             report(self.health, [refusal])  # nothing published: downstream never sees time go back a little
             return
+        self.health.observe_input(stamp)
         report(self.health, checked_detections(msg.detections)[1])  # detections_to_arrays leaves them out
         boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
         try:
