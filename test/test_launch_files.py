@@ -30,7 +30,7 @@ STAND_INS = {
     "launch": ("LaunchDescription",),
     "launch.actions": ("DeclareLaunchArgument", "OpaqueFunction", "RegisterEventHandler", "LogInfo", "Shutdown",
                        "TimerAction"),
-    "launch.event_handlers": ("OnProcessExit", "OnShutdown"),
+    "launch.event_handlers": ("OnProcessExit",),
     "launch_ros": (),
     "launch_ros.actions": ("Node",),
 }

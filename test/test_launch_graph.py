@@ -135,6 +135,8 @@ def test_respawn_restarts_a_killed_camera_and_recorder_which_carry_on(managed, r
     for node in ("camera", "recorder"):
         assert f"[graph] {node} exited with status -9: restarting it (restart 1 of at most 5)" in output, output[-3000:]
     assert "there are now at least 2 nodes" not in output
+    state_dir = __import__("re").search(r"resume file (\S+)/camera\.resume", output).group(1)
+    assert not __import__("os").path.exists(state_dir), "the launch left its state folder behind"
     assert fixes == images[images.index(fixes[0]):], output[-3000:]  # none lost or sent twice after the first
     assert recording_parts(recording) == [recording, tmp_path / "recording.1"]
     with BagReader(tmp_path / "recording.1") as reader:

@@ -25,6 +25,7 @@ its images (``wait_for_subscribers:=1``, unless the parameter files set another 
 ``./vessel graph`` does: a replay does not send its first frames to no one.
 """
 
+import atexit
 import functools
 import shutil
 import tempfile
@@ -39,7 +40,7 @@ from launch.actions import (
     Shutdown,
     TimerAction,
 )
-from launch.event_handlers import OnProcessExit, OnShutdown
+from launch.event_handlers import OnProcessExit
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -88,9 +89,8 @@ def _nodes(context):
         managed = graph_node.name in ("camera", "detector") and values["managed"].lower() == "true"
         make = functools.partial(_managed if managed else _plain, graph_node.executable, common)
         entities += _respawning(make, graph_node.name) if respawn else make()
-    if state_dir is not None:  # the state files live as long as the launch
-        entities.append(RegisterEventHandler(OnShutdown(on_shutdown=[
-            OpaqueFunction(function=lambda _context: shutil.rmtree(state_dir, ignore_errors=True))])))
+    if state_dir is not None:  # the state files live as long as the launch: removed once its nodes are gone
+        atexit.register(shutil.rmtree, state_dir, ignore_errors=True)  # (at its shutdown event they still write)
     return entities
 
 
@@ -119,7 +119,7 @@ def _respawning(make, name: str, restarts: int = 0) -> list:
     On a non-zero exit (``restart_wanted``) a new node like it starts after ``restart_delay_s``; after
     ``MAX_RESTARTS`` restarts the launch stops instead. A node that exits with 0, or at shutdown, stays down.
     """
-    entities = make()
+    entities = make(restarted=restarts > 0)
     node = entities[0]
 
     def on_exit(event, context):
@@ -131,6 +131,9 @@ def _respawning(make, name: str, restarts: int = 0) -> list:
                                 "stopping the launch, see its output"),
                     Shutdown(reason=f"{name} failed {restarts + 1} times")]
         _forget_node_name(context, node)
+        for entity in entities[1:]:  # a lifecycle node's: they would act on the new process too (activate it twice)
+            if isinstance(entity, RegisterEventHandler):
+                context.unregister_event_handler(entity.event_handler)
         delay = restart_delay_s(restarts)
         again = _respawning(make, name, restarts + 1)
         return [LogInfo(msg=f"[graph] {name} exited with status {status}: restarting it (restart {restarts + 1} "
@@ -148,12 +151,15 @@ def _forget_node_name(context, node) -> None:
         pass
 
 
-def _plain(executable: str, common: dict) -> list:
+def _plain(executable: str, common: dict, restarted: bool = False) -> list:
     return [Node(executable=executable, **common)]
 
 
-def _managed(executable: str, common: dict) -> list:
-    """A lifecycle node and the events that configure it, then activate it once it is inactive."""
+def _managed(executable: str, common: dict, restarted: bool = False) -> list:
+    """A lifecycle node and the events that configure it, then activate it once it is inactive.
+
+    A ``restarted`` one is configured once its own lifecycle service answers (``_once_answering``).
+    """
     from launch.actions import EmitEvent
     from launch.events import matches_action
     from launch_ros.actions import LifecycleNode
@@ -164,14 +170,48 @@ def _managed(executable: str, common: dict) -> list:
     node = LifecycleNode(executable=executable + "_managed", namespace="", **common)
 
     def transition(transition_id):
-        return EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id))
+        return ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id)
 
+    configure = transition(Transition.TRANSITION_CONFIGURE)
     return [
         node,
         RegisterEventHandler(OnStateTransition(target_lifecycle_node=node, goal_state="inactive",
-                                               entities=[transition(Transition.TRANSITION_ACTIVATE)])),
-        transition(Transition.TRANSITION_CONFIGURE),
+                                               entities=[EmitEvent(event=transition(Transition.TRANSITION_ACTIVATE))])),
+        _once_answering(common["name"], configure) if restarted else EmitEvent(event=configure),
     ]
+
+
+def _once_answering(name: str, event) -> OpaqueFunction:
+    """Emit ``event`` once node ``name``'s ``get_state`` service answers: a restarted node's, not the dead one's.
+
+    The killed process's services stay known for a while (its DDS lease): launch_ros sent a restarted node's
+    ``configure`` at once, to the dead one alone, and waited for its answer for good (the node stayed unconfigured).
+    Only a live process answers ``get_state``; asked again every 2 s until it does.
+    """
+    def start(context):
+        import time
+
+        from launch_ros.ros_adapters import get_ros_node
+        from lifecycle_msgs.srv import GetState
+
+        ros_node = get_ros_node(context)
+        client = ros_node.create_client(GetState, f"/{name}/get_state")
+
+        def ask() -> None:
+            while not context.is_shutdown:
+                future = client.call_async(GetState.Request())
+                deadline = time.monotonic() + 2.0
+                while not future.done() and time.monotonic() < deadline and not context.is_shutdown:
+                    time.sleep(0.05)
+                if future.done():
+                    context.asyncio_loop.call_soon_threadsafe(lambda: context.emit_event_sync(event))
+                    break
+                client.remove_pending_request(future)
+            ros_node.destroy_client(client)
+
+        context.add_completion_future(context.asyncio_loop.run_in_executor(None, ask))
+
+    return OpaqueFunction(function=start)
 
 
 def generate_launch_description():

@@ -475,8 +475,9 @@ class ManagedCameraNode(PhasedLifecycle, _CameraPhases, LifecycleNode):
     """The camera as a managed (lifecycle) node: ``ros2 run vessel_detect camera_managed``.
 
     configure opens the source (a bad one fails the transition, logged, the node stays unconfigured) and makes the
-    publishers; activate starts streaming (a recorded source from its first frame); deactivate stops; cleanup
-    closes the source; shutdown from any state.
+    publishers; activate starts streaming (a recorded source from its first frame; with a ``resume_file``, after the
+    last frame sent, by this process or the one before a restart); deactivate stops; cleanup closes the source;
+    shutdown from any state.
     """
 
     def __init__(self) -> None:

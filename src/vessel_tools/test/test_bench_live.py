@@ -37,8 +37,10 @@ def test_figures_count_drops_and_losses_and_fit_memory_growth():
            "fixes": 210}
     samples = {"detector": [(0.0, 300.0), (60.0, 301.0), (120.0, 302.0)]}
     per_minute = [{"minute": 1, "p50": 400.0, "p95": 450.0, "n": 1}, {"minute": 2, "p50": 500.0, "p95": 520.0, "n": 1}]
+    stage = {"p50": 20.0, "p95": 30.0, "n": 1}
     result = bench_live._figures(args, "frames/13", start, end, samples, [0.4, 0.5], [0.4], [0.5], 60.0,
-                                 per_minute=per_minute, live_tracks=[(30.0, 11.0), (60.0, 14.0)])
+                                 per_minute=per_minute, live_tracks=[(30.0, 11.0), (60.0, 14.0)],
+                                 stages=({"tracker": stage}, {"tracker": {**stage, "p50": 90.0}}))
     assert result["frames_offered"] == 1500 and result["frames_processed"] == 200
     assert result["frames_dropped_by_detector"] == 1290 and result["frames_lost_in_transport"] == 10
     assert result["memory"]["detector"]["growth_mb_per_min"] == pytest.approx(1.0)
@@ -50,6 +52,7 @@ def test_figures_count_drops_and_losses_and_fit_memory_growth():
     assert "first minute p50/p95 400/400 ms, last minute 500/500 ms (last/first p50 1.25)" in report
     assert "per minute p50/p95, ms: 1: 400/450, 2: 500/520" in report and "live tracks per 30 s: 11 14" in report
     assert "detector         300.0 ->   302.0 (+1.00/min)" in report
+    assert "per node p50/p95 first -> last minute, ms: tracker 20/30 -> 90/30" in report
 
 
 def test_latency_is_reported_for_every_minute_of_the_window():
@@ -62,6 +65,23 @@ def test_latency_is_reported_for_every_minute_of_the_window():
     minutes = bench_live._latency_by_minute(watcher, 0, 2 * minute + 30 * 10**9)
     assert [m["minute"] for m in minutes] == [1, 2, 3] and [m["n"] for m in minutes] == [1, 2, 1]
     assert [m["p50"] for m in minutes] == pytest.approx([100.0, 400.0, 200.0])
+
+
+def test_latency_is_split_by_the_node_that_spent_it():
+    watcher = SimpleNamespace(log=ArrivalLog(bench_live.CHAIN))
+    ms = 1_000_000
+    for stamp, image_ns, steps_ms in ((1, 1000 * ms, (50, 10, 20, 1)), (2, 2000 * ms, (70, 30, 40, 3)),
+                                      (3, 9000 * ms, (1, 1, 1, 1))):
+        published = image_ns
+        watcher.log.add(bench_live.IMAGE_TOPIC, stamp, published, published + ms)
+        for topic, step in zip(bench_live.CHAIN[1:], steps_ms, strict=True):
+            published += step * ms
+            watcher.log.add(topic, stamp, published, published + ms)
+    watcher.log.add(bench_live.IMAGE_TOPIC, 4, 3000 * ms, 3000 * ms)  # dropped by the detector: in no stage
+    stages = bench_live._stage_latencies_ms(watcher, 0, 5000 * ms)
+    assert list(stages) == ["detector", "tracker", "fuser", "gps_publisher"]
+    assert [stages[name]["p50"] for name in stages] == pytest.approx([60.0, 20.0, 30.0, 2.0])
+    assert all(stage["n"] == 2 for stage in stages.values())
 
 
 def test_reported_values_are_read_from_the_named_node_only():

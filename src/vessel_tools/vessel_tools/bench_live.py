@@ -9,7 +9,8 @@ nodes' own ``/diagnostics`` counters and an in-process watcher:
   detector's ``dropped_frames``: replaced before it took them; the rest of the gap is lost in transport);
 - latency from an image's arrival to the ``/vessel/fix`` of the same stamp, p50 and p95, over the run, for the
   first and the last minute and for every minute (a growing queue or a growing cost per frame shows as a growing
-  latency);
+  latency), and split by the node it was spent in (from one node's publication of a frame to the next one's:
+  queue and work), so that a growing latency points at its node;
 - memory (RSS) of every node at the start and at the end, sampled every 30 s, and its growth per minute;
 - the tracker's live tracks (its ``live_tracks`` on ``/diagnostics``) at each sample: the cost of a frame in the
   tracker, the fuser and the GPS publisher grows with them.
@@ -31,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from vessel_bringup.graph import default_calibration_file, default_params_file
-from vessel_bringup.graph_watcher import FIX_TOPIC, IMAGE_TOPIC
+from vessel_bringup.graph_watcher import CHAIN, FIX_TOPIC, IMAGE_TOPIC
 from vessel_common.command_line import command_line_tool
 from vessel_common.errors import DataError
 from vessel_common.paths import default_data_dir
@@ -104,12 +105,36 @@ def _value(diagnostics: dict[str, dict[str, str]], node: str, key: str) -> float
 
 
 def _latency_by_minute(watcher, since_ns: int, until_ns: int) -> list[dict]:
-    """Latency (``summary_ms``) of the images that arrived in each minute from ``since_ns`` (the last one partial)."""
+    """Latency (``summary_ms``) of the images that arrived in each minute from ``since_ns``.
+
+    A last partial minute counts when it is at least half a minute long.
+    """
     minute_ns = 60_000_000_000
     out = []
-    for index, start in enumerate(range(since_ns, until_ns, minute_ns)):
+    for index, start in enumerate(range(since_ns, until_ns - minute_ns // 2 + 1, minute_ns)):
         out.append({"minute": index + 1, **summary_ms(_latencies_s(watcher, start, min(start + minute_ns, until_ns)))})
     return out
+
+
+STAGES = ("detector", "tracker", "fuser", "gps_publisher")
+"""The node that publishes each topic of ``CHAIN`` after the image."""
+
+
+def _stage_latencies_ms(watcher, since_ns: int, until_ns: int) -> dict[str, dict]:
+    """Per node, ``summary_ms`` of the time from the previous node's publication of a frame to its own.
+
+    Frames whose image arrived in the window and that reached ``/vessel/fix``; publication times are the DDS source
+    timestamps (each node's clock, CLOCK_REALTIME, one machine).
+    """
+    logs = [watcher.log.by_topic[topic] for topic in CHAIN]
+    stages: dict[str, list[float]] = {name: [] for name in STAGES}
+    for key, image in logs[0].items():
+        chain = [image] + [log.get(key) for log in logs[1:]]
+        if any(arrival is None for arrival in chain) or not since_ns <= image.received_ns < until_ns:
+            continue
+        for name, before, after in zip(STAGES, chain[:-1], chain[1:], strict=True):
+            stages[name].append((after.published_ns - before.published_ns) / 1e9)
+    return {name: summary_ms(values) for name, values in stages.items()}
 
 
 def _latencies_s(watcher, since_ns: int, until_ns: int) -> list[float]:
@@ -170,7 +195,9 @@ def run(args: argparse.Namespace) -> dict:
                         last_minute=_latencies_s(watcher, measure_to_ns - minute_ns, measure_to_ns),
                         seconds=(measure_to_ns - measure_from_ns) / 1e9,
                         per_minute=_latency_by_minute(watcher, measure_from_ns, measure_to_ns),
-                        live_tracks=live_tracks)
+                        live_tracks=live_tracks, stages=(
+                            _stage_latencies_ms(watcher, measure_from_ns, measure_from_ns + minute_ns),
+                            _stage_latencies_ms(watcher, measure_to_ns - minute_ns, measure_to_ns)))
     finally:
         session.stop()
 
@@ -188,7 +215,7 @@ _COUNTERS = (("camera", "frames_sent"), ("detector", "frames_received"), ("detec
 
 
 def _figures(args, folder, counters_start, counters_end, samples, all_latencies, first_minute, last_minute,
-             seconds, per_minute=(), live_tracks=()) -> dict:
+             seconds, per_minute=(), live_tracks=(), stages=({}, {})) -> dict:
     delta = {key: counters_end[key] - counters_start[key] for key in counters_end}
     memory = {}
     for name, values in samples.items():
@@ -214,6 +241,7 @@ def _figures(args, folder, counters_start, counters_end, samples, all_latencies,
         "latency_last_minute_ms": last,
         "latency_last_over_first_p50": last["p50"] / first["p50"] if first["n"] and last["n"] else float("nan"),
         "latency_per_minute_ms": list(per_minute),
+        "stage_latency_first_minute_ms": stages[0], "stage_latency_last_minute_ms": stages[1],
         "live_tracks_s": [[float(a), float(b)] for a, b in live_tracks],
         "memory": memory,
         "machine": machine_info(),
@@ -228,6 +256,11 @@ def format_report(result: dict) -> str:
     per_minute = ", ".join(f"{m['minute']}: {m.get('p50', nan):.0f}/{m.get('p95', nan):.0f}"
                            for m in result.get("latency_per_minute_ms", []))
     tracks = [n for _, n in result.get("live_tracks_s", [])]
+    first_stages, last_stages = result.get("stage_latency_first_minute_ms", {}), result.get(
+        "stage_latency_last_minute_ms", {})
+    stages = ", ".join(f"{name} {first_stages[name]['p50']:.0f}/{first_stages[name]['p95']:.0f} -> "
+                       f"{last_stages[name]['p50']:.0f}/{last_stages[name]['p95']:.0f}"
+                       for name in first_stages if name in last_stages)
     lines = [
         f"live stream {result['source']} at {result['fps']:g} frames/s, {result['minutes_measured']:.1f} min measured",
         f"  frames offered {result['frames_offered']} ({result['offered_per_s']:.1f}/s), received by the detector "
@@ -240,6 +273,7 @@ def format_report(result: dict) -> str:
         f"{last.get('p50', nan):.0f}/{last.get('p95', nan):.0f} ms (last/first p50 "
         f"{result.get('latency_last_over_first_p50', nan):.2f})",
         f"  per minute p50/p95, ms: {per_minute or 'none'}",
+        f"  per node p50/p95 first -> last minute, ms: {stages or 'not measured'}",
         f"  tracker live tracks per 30 s: {' '.join(f'{n:.0f}' for n in tracks) or 'not reported'}",
         "  memory (RSS, MB) start -> end (growth per minute):",
     ]

@@ -78,15 +78,26 @@ EVERY_CLASS = "*"
 for a node with an unset one)."""
 
 
-def _tracker_config_rows() -> tuple[Param, ...]:
-    defaults = TrackerConfig()
+def settings_rows(defaults: dict, descriptions: dict, choices: dict, live) -> tuple[Param, ...]:
+    """Rows whose defaults are a settings dataclass's (flat names): one value in one place.
+
+    ``descriptions``: name -> (description, range); ``live(name)``: whether a running node applies a change.
+    """
     rows = []
-    for f in fields(TrackerConfig):
-        description, float_range = _TRACKER_DESCRIPTIONS[f.name]
-        rows.append(Param(f.name, getattr(defaults, f.name), description,
-                          value_range=_TRACKER_INT_RANGES.get(f.name, float_range),
-                          choices=_TRACKER_CHOICES.get(f.name, ()), live=f.name in _TRACKER_LIVE))
+    for name, default in defaults.items():
+        description, value_range = descriptions[name]
+        if isinstance(default, (list, tuple)):
+            default = [float(v) for v in default]
+        numeric = isinstance(default, (int, float, list)) and not isinstance(default, bool)
+        rows.append(Param(name, default, description, value_range=value_range if numeric else None,
+                          choices=choices.get(name, ()), live=live(name)))
     return tuple(rows)
+
+
+def _tracker_config_rows() -> tuple[Param, ...]:
+    descriptions = {name: (text, _TRACKER_INT_RANGES.get(name, bounds))
+                    for name, (text, bounds) in _TRACKER_DESCRIPTIONS.items()}
+    return settings_rows(TrackerConfig().to_dict(), descriptions, _TRACKER_CHOICES, _TRACKER_LIVE.__contains__)
 
 
 TRACKER_PARAMETERS = ParameterTable("tracker", "Tracker node (vessel_track tracker): detections -> screen-space "
@@ -240,15 +251,8 @@ holds, or the offline pass, and need a restart."""
 
 
 def _fuser_settings_rows() -> tuple[Param, ...]:
-    rows = []
-    for name, default in flatten(FuserSettings().to_params()).items():
-        description, value_range = _FUSER_DESCRIPTIONS[name]
-        if isinstance(default, list):
-            default = [float(v) for v in default]
-        numeric = isinstance(default, (int, float, list)) and not isinstance(default, bool)
-        rows.append(Param(name, default, description, value_range=value_range if numeric else None,
-                          choices=_FUSER_CHOICES.get(name, ()), live=name.startswith(_FUSER_LIVE_BLOCKS)))
-    return tuple(rows)
+    return settings_rows(flatten(FuserSettings().to_params()), _FUSER_DESCRIPTIONS, _FUSER_CHOICES,
+                         lambda name: name.startswith(_FUSER_LIVE_BLOCKS))
 
 
 FUSER_PARAMETERS = ParameterTable("fuser", "Fuser node (vessel_track fuser): screen tracks -> sea-plane tracks, "
