@@ -43,7 +43,8 @@ _BY_LAYER = {
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
                vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
-               vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing vessel_detect.resume_files
+               vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing
+               vessel_detect.resume_files
                vessel_detect.class_names vessel_detect.network_input vessel_detect.bag_topics
                vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model

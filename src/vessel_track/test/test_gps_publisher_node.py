@@ -192,6 +192,7 @@ def test_frames_a_restart_upstream_lost_are_counted(monkeypatch, ros_context):
     """A fuser killed and restarted leaves a gap in the stamps the GPS publisher gets: counted, the status stays."""
     pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
     import rclpy.parameter
+
     from vessel_fixtures.ros_nodes import node_in_context
     from vessel_msgs.msg import VesselTrackArray
     from vessel_track.gps_publisher_node import GpsPublisherNode
