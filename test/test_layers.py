@@ -48,7 +48,10 @@ _BY_LAYER = {
                vessel_detect.class_names vessel_detect.network_input vessel_detect.bag_topics
                vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
-               vessel_track.fuser_settings vessel_track.parameter_tables vessel_track.message_checks""",
+               vessel_track.fuser_settings vessel_track.parameter_tables vessel_track.message_checks
+               vessel_track.tracker_config vessel_track.association vessel_track.track_record
+               vessel_track.selection_config vessel_track.trajectory_scoring vessel_track.offline_selection
+               vessel_track.track_fuser""",
     "ros": """vessel_common.qos vessel_common.health vessel_common.parameter_declaration vessel_common.node_state
               vessel_common.lifecycle vessel_common.run vessel_common.node_parameters vessel_calib.camera_parameters
               vessel_detect.bag_messages vessel_detect.bag_writer vessel_detect.bag_reader vessel_detect.bag_salvage

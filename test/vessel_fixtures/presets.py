@@ -10,7 +10,7 @@ PAPER_PARAMS = Path(__file__).resolve().parents[2] / "config" / "paper.yaml"
 
 def paper_tracker_config(**changes):
     """``TrackerConfig`` of config/paper.yaml, with ``changes``."""
-    from vessel_track.tracker import load_tracker_config
+    from vessel_track.tracker_config import load_tracker_config
 
     return dataclasses.replace(load_tracker_config(PAPER_PARAMS), **changes)
 

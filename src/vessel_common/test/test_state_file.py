@@ -28,7 +28,8 @@ from vessel_common.state_file import (
     remove_state_file,
     settings_fingerprint,
 )
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 
 
 class _CreatesAFileWhenUnpickled:
@@ -192,7 +193,7 @@ def test_the_real_tracker_and_fuser_carry_on_from_their_state_files_as_if_never_
     """Cut anywhere (tracks ended this frame, a lost target's history handed down): the same outputs after."""
     from vessel_tools.track.simulation import challenge_camera, harbour_scenario
     from vessel_track.distance_model import BoxSizeDistanceModel
-    from vessel_track.fusion import TrackFuser
+    from vessel_track.track_fuser import TrackFuser
 
     frames = harbour_scenario(seed=seed).run().frames
     camera, model, config = challenge_camera(), BoxSizeDistanceModel(), TrackerConfig()

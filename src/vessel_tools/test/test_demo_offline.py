@@ -69,7 +69,7 @@ def test_the_coco_preset_over_the_shipped_parameters_gives_settings_every_node_a
     from vessel_detect.detector_params import load_params_files
     from vessel_tools.demo import merged_params_file
     from vessel_track.fuser_settings import load_fuser_settings
-    from vessel_track.tracker import load_tracker_config
+    from vessel_track.tracker_config import load_tracker_config
 
     config = Path(__file__).resolve().parents[3] / "config"
     merged = merged_params_file(config / "aitas.yaml", config / "detector_coco.yaml", tmp_path / "params.yaml")

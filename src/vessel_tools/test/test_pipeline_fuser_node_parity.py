@@ -21,8 +21,10 @@ from vessel_tools.track import pipeline as pl
 from vessel_tools.track.simulation import LinePath, Scenario, SimVessel, bearing_point
 from vessel_track.fuser_node import fill_world_fields, screen_track_from_msg
 from vessel_track.fuser_settings import FuserSettings
-from vessel_track.fusion import FusionConfig, TrackFuser
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.fusion import FusionConfig
+from vessel_track.track_fuser import TrackFuser
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 from vessel_track.tracker_node import track_to_msg
 
 

@@ -22,7 +22,8 @@ from vessel_tools.track.simulation import (
     harbour_scenario,
 )
 from vessel_tools.track.tracking_score import run_tracker, score_tracking
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig, TrackState, TrackStatus
+from vessel_track.tracker import MultiTargetTracker, TrackState, TrackStatus
+from vessel_track.tracker_config import TrackerConfig
 
 PERFECT = DetectorModel(center_std_px=0.0, size_std_frac=0.0, miss_prob=0.0, clutter_rate=0.0,
                         static_clutter_prob=0.0)

@@ -43,8 +43,9 @@ from vessel_tools.proc_monitor import read_proc
 from vessel_tools.track.pipeline import screen_track_of
 from vessel_tools.track.simulation import challenge_camera, fuser_settings_of_simulation, harbour_scenario
 from vessel_track.fuser_settings import load_fuser_settings
-from vessel_track.fusion import TrackFuser
-from vessel_track.tracker import MultiTargetTracker, load_tracker_config
+from vessel_track.track_fuser import TrackFuser
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import load_tracker_config
 
 DEFAULT_FPS = 25.0
 DEFAULT_MINUTES = 10.0

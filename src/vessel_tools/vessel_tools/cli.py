@@ -67,6 +67,9 @@ TOOLS: dict[str, Tool | Group] = {
                      "processed, dropped; latency; memory of every node", "[--minutes 10] [--fps 25] [--out F]"),
         "restart": Tool("vessel_tools.bench_restart", "kill -9 one node of `graph --respawn`: time to the next "
                         "fix, fixes lost, fixes against an uninterrupted run", "[--nodes LIST] [--compare-cold]"),
+        "soak": Tool("vessel_tools.bench_soak", "the tracker and fuser cores without ROS on a looped stream for "
+                     "minutes: CPU per frame, memory and every structure's size, minute by minute",
+                     "[--minutes 10] [--fps 25] [--scene looped|harbour] [--recording DIR] [--out F]"),
     }, default="graph"),
     "pipeline": Tool("vessel_tools.track.pipeline", "tracker, fuser and target choice without ROS over a detections "
                      "CSV (online or smoothed offline); where the defaults were chosen",

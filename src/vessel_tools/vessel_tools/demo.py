@@ -48,7 +48,7 @@ from vessel_tools.detect.bag_build import BuildOptions, build_from_dataset
 from vessel_tools.track.evaluation import FIX_COLUMNS
 from vessel_tools.track.offline_data import DetectionFrame
 from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
-from vessel_track.tracker import load_tracker_config
+from vessel_track.tracker_config import load_tracker_config
 from vessel_track.tracker_node import detections_to_arrays, load_detection_inputs
 
 REPLAY_DETECTOR = GraphNode("detector", "vessel_detect", "replay_detector", "hand-labelled boxes as detections")

@@ -356,7 +356,7 @@ def test_published_covariances_are_exactly_symmetric():
     """A filter's covariance is symmetric only to rounding; a strict check by a consumer would refuse it."""
     from vessel_msgs.msg import VesselTrack
     from vessel_track.fuser_node import fill_world_fields
-    from vessel_track.fusion import ScreenTrack, WorldTrack
+    from vessel_track.track_fuser import ScreenTrack, WorldTrack
 
     screen = ScreenTrack("T1", 1, np.array([600.0, 450.0]), np.array([30.0, 12.0]), 0.9, True)
     world = WorldTrack(screen, 1601496000.0, has_world=True, position=np.array([100.0, 50.0]),
@@ -404,7 +404,8 @@ def test_a_restarted_fuser_refuses_a_pickled_state_file_and_carries_on_from_its_
     from vessel_msgs.msg import VesselTrackArray
     from vessel_tools.track.simulation import harbour_scenario
     from vessel_track.fuser_node import FuserNode
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker import MultiTargetTracker
+    from vessel_track.tracker_config import TrackerConfig
     from vessel_track.tracker_node import track_to_msg
 
     marker, path = tmp_path / "created_by_the_pickle", tmp_path / "fuser.state"
@@ -518,7 +519,8 @@ def test_a_replay_restart_still_reaches_the_fuser_with_its_lost_tracks(fuser_nod
     """The tracker reports its old tracks LOST at the restarted (earlier) stamp, seen after it: they go on."""
     from vessel_common.qos import sec_to_stamp
     from vessel_msgs.msg import VesselTrack, VesselTrackArray
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker import MultiTargetTracker
+    from vessel_track.tracker_config import TrackerConfig
     from vessel_track.tracker_node import track_to_msg
 
     node, published = fuser_node

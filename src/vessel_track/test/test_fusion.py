@@ -18,13 +18,13 @@ from vessel_track.fusion import (
     REASON_INVALID_INPUT,
     CueStatistics,
     FusionConfig,
-    ScreenTrack,
-    TrackFuser,
     fit_cue_statistics,
     fuse_boxes,
     gls_weights,
 )
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.track_fuser import ScreenTrack, TrackFuser
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 
 MODEL = BoxSizeDistanceModel(a=3000.0, b=5.0, c=1500.0, d=2.0)
 

@@ -8,14 +8,9 @@ import pytest
 
 from vessel_common.errors import DataError
 from vessel_fixtures.presets import paper_selection
-from vessel_track.selection import (
-    OnlineTargetSelector,
-    Trajectory,
-    join_trajectories,
-    path_length_m,
-    select_target,
-    trajectory_score,
-)
+from vessel_track.offline_selection import Trajectory, join_trajectories, select_target
+from vessel_track.selection import OnlineTargetSelector
+from vessel_track.trajectory_scoring import path_length_m, trajectory_score
 
 
 def test_score_is_the_papers_formula():

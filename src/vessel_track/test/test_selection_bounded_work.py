@@ -9,9 +9,10 @@ import numpy as np
 
 from vessel_tools.track.pipeline import screen_track_of
 from vessel_tools.track.simulation import challenge_camera, fuser_settings_of_simulation, harbour_scenario
-from vessel_track.fusion import TrackFuser
-from vessel_track.selection import SelectionConfig
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.selection_config import SelectionConfig
+from vessel_track.track_fuser import TrackFuser
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 
 FPS = 25.0
 

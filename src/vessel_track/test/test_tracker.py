@@ -6,14 +6,9 @@ import numpy as np
 import pytest
 
 from vessel_common.errors import DataError
-from vessel_track.tracker import (
-    MultiTargetTracker,
-    TrackerConfig,
-    TrackStatus,
-    load_tracker_config,
-    process_noise_matrix,
-    transition_matrix,
-)
+from vessel_track.association import clutter_cost, cost_matrix
+from vessel_track.tracker import MultiTargetTracker, TrackStatus, process_noise_matrix, transition_matrix
+from vessel_track.tracker_config import TrackerConfig, load_tracker_config
 
 T0 = 1_601_494_438.0
 
@@ -196,7 +191,7 @@ def _two_tracks_and_three_boxes(config: TrackerConfig):
         tracker._predict(track, T0 + 16)
     centers = np.array([[296, 419], [306, 420], [705, 432]], float)
     sizes = np.array([[26, 8], [30, 15], [50, 40]], float)
-    return tracker._cost_matrix(tracks, centers, sizes), tracker._clutter_cost(), tracks, sizes
+    return cost_matrix(config, tracks, centers, sizes), clutter_cost(config), tracks, sizes
 
 
 def test_without_the_height_parameters_the_costs_are_those_of_one_size_model():
@@ -211,12 +206,12 @@ def test_without_the_height_parameters_the_costs_are_those_of_one_size_model():
     size_term = np.sum((ratio / config.size_log_std) ** 2, axis=2)
     admissible = cost < 1e8
     np.testing.assert_allclose(cost[admissible], (one_model + size_term)[admissible], rtol=1e-9)
-    clutter_without_size = MultiTargetTracker(TrackerConfig(**ONE_SIZE_MODEL, size_weight=0.0))._clutter_cost()
+    clutter_without_size = clutter_cost(TrackerConfig(**ONE_SIZE_MODEL, size_weight=0.0))
     expected = clutter_without_size + 4.0 * math.log(math.log(10.0)) - 2.0 * math.log(
         2.0 * math.pi * config.size_log_std**2)
     assert clutter == pytest.approx(expected, rel=1e-12)
     # A height model of its own: the clutter's height density is spread over the same decade, normalised by it.
-    own_height = MultiTargetTracker(TrackerConfig(height_log_std=0.2, height_log_std_rate=0.0))._clutter_cost()
+    own_height = clutter_cost(TrackerConfig(height_log_std=0.2, height_log_std_rate=0.0))
     assert own_height == pytest.approx(expected + math.log(config.size_log_std**2 / 0.2**2), rel=1e-12)
 
 
@@ -513,7 +508,8 @@ def test_min_hits_one_confirms_at_once():
 
 
 def test_tracks_carry_the_class_of_their_latest_detection():
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker import MultiTargetTracker
+    from vessel_track.tracker_config import TrackerConfig
 
     tracker = MultiTargetTracker(TrackerConfig(min_hits=1))
     first = tracker.update(0.0, [[100, 100, 140, 120], [400, 100, 440, 120]], [0.9, 0.2],

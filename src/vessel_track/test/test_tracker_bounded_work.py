@@ -8,7 +8,8 @@ from collections import deque
 
 import numpy as np
 
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 
 FPS = 25.0
 
@@ -29,7 +30,7 @@ class CountingHistory(deque):
 
 
 def test_an_update_reads_only_the_newest_confidences_of_each_history():
-    config = TrackerConfig()
+    config = TrackerConfig(history_length=2000)  # a long history, as a state file or a user may keep
     tracker = MultiTargetTracker(config)
     box = np.array([[600.0, 400.0, 640.0, 420.0]])
     for k in range(300):  # one vessel seen in every frame for 12 s: a history of 300 updates

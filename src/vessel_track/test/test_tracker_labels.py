@@ -9,7 +9,8 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 
 pytestmark = pytest.mark.data
 

@@ -73,7 +73,8 @@ def test_tracker_node_tracks_a_scenario_and_counts_bad_input(ros_graph):
     from vessel_common.qos import reliable_qos, stamp_to_sec
     from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
     from vessel_tools.track.simulation import harbour_scenario
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker import MultiTargetTracker
+    from vessel_track.tracker_config import TrackerConfig
 
     tracker, node, spin_until = ros_graph
     received: list = []
@@ -148,7 +149,7 @@ def test_every_tracker_config_field_is_a_described_parameter():
     from dataclasses import fields
 
     from vessel_track.parameter_tables import TRACKER_PARAMETERS
-    from vessel_track.tracker import TrackerConfig
+    from vessel_track.tracker_config import TrackerConfig
 
     assert {f.name for f in fields(TrackerConfig)} <= set(TRACKER_PARAMETERS.names)
     assert all(param.description.strip() for param in TRACKER_PARAMETERS)
@@ -189,7 +190,8 @@ def test_a_standby_tracker_publishes_only_once_promoted(start_node, driver, ask_
     from vessel_common.qos import reliable_qos
     from vessel_msgs.msg import Detection2DArray, VesselTrackArray
     from vessel_tools.track.simulation import harbour_scenario
-    from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+    from vessel_track.tracker import MultiTargetTracker
+    from vessel_track.tracker_config import TrackerConfig
 
     tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS),
                          "-r", "__ns:=/standby_1", "-p", "standby:=true")

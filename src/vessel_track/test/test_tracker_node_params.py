@@ -5,7 +5,7 @@ from pathlib import Path
 
 import yaml
 
-from vessel_track.tracker import TrackerConfig
+from vessel_track.tracker_config import TrackerConfig
 
 PART = Path(__file__).resolve().parents[3] / "config" / "parts" / "tracker.yaml"
 

@@ -3,7 +3,7 @@
 Subscribes ``/vessel/tracks/screen`` (``vessel_msgs/VesselTrackArray`` from the tracker), publishes
 ``/vessel/tracks`` with every track's world position, velocity, 2x2 covariances, lat/lon, distance,
 bearing, expected error and the vessel-of-interest flag; the header (image stamp) is kept. The work is done by
-``vessel_track.fusion.TrackFuser`` (fusion of box position and size, a Kalman filter per track in world
+``vessel_track.track_fuser.TrackFuser`` (fusion of box position and size, a Kalman filter per track in world
 coordinates, online target selection); this node converts messages and reports problems on ``/diagnostics``.
 
 A track counts as measured in a frame when its ``last_seen`` equals the array's stamp (the tracker sets it to
@@ -30,10 +30,10 @@ from vessel_common.qos import reliable_qos, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
-from vessel_track.fusion import ScreenTrack, TrackFuser, WorldTrack
 from vessel_track.message_checks import checked_tracks, header_refusal, order_refusal, report
 from vessel_track.node_params import fuser_settings_of, main_with_checks, refuse_moved_parameters
 from vessel_track.parameter_tables import FUSER_PARAMETERS
+from vessel_track.track_fuser import ScreenTrack, TrackFuser, WorldTrack
 
 #: last_seen within this of the frame stamp means the track was updated in this frame.
 UPDATED_TOLERANCE_S = 1e-6

@@ -6,7 +6,7 @@ The fuser node, the pipeline and the fit tools share this, so the parameter file
     distance_model: {a, b, c, d, sigma_width_px, sigma_height_px, ...}     (distance_model.py)
     fusion: {weights_mode, anchor_offset, ..., shape_jump_ratio, cue_covariance, cue_x_std_px}  (fusion.py)
     motion: {accel_psd, initial_speed_std, max_speed, gate_chi2, max_rejections, max_gap_s}          (smoothing.py)
-    selection: {confidence_percentile, join_*, switch_*, ...}                                        (selection.py)
+    selection: {confidence_percentile, join_*, switch_*, ...}                                 (selection_config.py)
     offline: {outlier_threshold_px, iterations}                                                       (pipeline)
     error_model: {kind, slope, intercept_m, ...}                                                     (error_model.py)
     water_level: {file, max_hold_s}                                        (vessel_calib.water_level, the tide)
@@ -31,7 +31,7 @@ from vessel_common.parameter_names import flatten
 from vessel_track.distance_model import BoxSizeDistanceModel
 from vessel_track.error_model import ErrorModel
 from vessel_track.fusion import CueStatistics, FusionConfig
-from vessel_track.selection import SelectionConfig
+from vessel_track.selection_config import SelectionConfig
 from vessel_track.smoothing import MotionConfig
 
 OFFLINE_TARGETS = ("joined", "online")

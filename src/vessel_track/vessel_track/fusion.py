@@ -13,25 +13,18 @@ renormalised. The fused ideal point goes through ``H^-1`` to metres; points on o
 ``max_range_m`` are rejected, positions clipped to ±``clip_m`` as in the paper. The 2x2 position covariance is
 the pixel covariance pushed through the Jacobian of the back-projection, so it is long along the line of sight.
 
-``TrackFuser`` applies this per track and frame, runs a ``WorldKalmanFilter`` per track and the online
-vessel-of-interest selection: it is the core of the ``fuser`` node and of the pipeline's online mode.
+``vessel_track.track_fuser.TrackFuser`` applies this per track and frame, with a world Kalman filter per track and
+the online vessel-of-interest selection.
 """
 from __future__ import annotations
 
-import copy
 import math
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from vessel_calib import geodesy
-from vessel_common.errors import CalibrationError, DataError
-from vessel_common.state_file import fields_of, object_state, restore_object, set_fields
+from vessel_common.errors import DataError
 from vessel_track.distance_model import MAD_TO_SIGMA, BoxSizeDistanceModel, box_cut_by_border, depth_scale
-from vessel_track.error_model import ErrorModel
-from vessel_track.selection import OnlineTargetSelector, SelectionConfig, _Running
-from vessel_track.smoothing import FilterOutput, MotionConfig, WorldKalmanFilter
 
 WEIGHT_MODES = ("fitted", "paper", "position_only")
 #: Which box of a track the fuser measures: the detection associated in this image, or the tracker's filtered box.
@@ -238,6 +231,26 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
     config = config or FusionConfig()
     stats = stats or CueStatistics()
     boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
+    ok_input, xp, cue_y = _cues(camera, model, boxes, config)
+    weights, var_y = _cue_weights(cue_y, config, stats)
+    fused_y = np.where(ok_input, np.nansum(np.nan_to_num(cue_y) * weights, axis=1), np.nan)
+    world, reason = _sea_plane(camera, xp, fused_y, ok_input, config)
+    valid = reason == REASON_OK
+    world[~valid] = np.nan
+    covariance = _world_covariance(camera, xp, fused_y, var_y, valid, stats)
+    xs, ys = camera.distort(xp, fused_y)
+    screen = np.column_stack([np.asarray(xs, dtype=float).reshape(-1), np.asarray(ys, dtype=float).reshape(-1)])
+    screen[~valid] = np.nan
+    return FusedBoxes(world, covariance, valid, reason, xp, cue_y, np.where(valid, fused_y, np.nan),
+                      np.sqrt(var_y), weights, screen)
+
+
+def _cues(camera, model: BoxSizeDistanceModel, boxes: np.ndarray,
+          config: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N,) usable boxes, (N,) ideal x of their reference points, (N, 3) ideal y of each cue (NaN: unavailable).
+
+    A size cue whose box edge is cut by the image border is unavailable.
+    """
     n = boxes.shape[0]
     sizes = boxes[:, 2:] - boxes[:, :2]
     ok_input = np.all(np.isfinite(boxes), axis=1) & np.all(sizes > 0, axis=1)
@@ -255,6 +268,12 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
         cue_y[:, 1] = np.where(cut[:, 0], np.nan, y_w)
         cue_y[:, 2] = np.where(cut[:, 1], np.nan, y_h)
     cue_y[~ok_input] = np.nan
+    return ok_input, xp, cue_y
+
+
+def _cue_weights(cue_y: np.ndarray, config: FusionConfig, stats: CueStatistics) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) weights of each box's available cues by ``config.weights_mode``, and (N,) the fused y's variance."""
+    n = cue_y.shape[0]
     weights = np.zeros((n, 3))
     var_y = np.full(n, np.nan)
     for i in range(n):
@@ -267,12 +286,17 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
             weights[i], var_y[i] = fixed_weights(PAPER_WEIGHTS, stats.covariance, available)
         else:
             weights[i], var_y[i] = fixed_weights((1.0, 0.0, 0.0), stats.covariance, available)
-    fused_y = np.where(ok_input, np.nansum(np.nan_to_num(cue_y) * weights, axis=1), np.nan)
+    return weights, var_y
+
+
+def _sea_plane(camera, xp: np.ndarray, fused_y: np.ndarray, ok_input: np.ndarray,
+               config: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) sea-plane positions of the fused ideal points, clipped to ``clip_m``, and (N,) each one's REASON_*."""
     xw, yw, in_front = camera.ideal_to_world(xp, fused_y)
     xw = np.asarray(xw, dtype=float).reshape(-1)
     yw = np.asarray(yw, dtype=float).reshape(-1)
     in_front = np.asarray(in_front, dtype=bool).reshape(-1)
-    reason = np.full(n, REASON_OK)
+    reason = np.full(xp.shape[0], REASON_OK)
     reason[~ok_input] = REASON_INVALID_INPUT
     depth = -np.asarray(camera.zp_of_world(np.nan_to_num(xw), np.nan_to_num(yw)), dtype=float)
 
@@ -282,9 +306,14 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
     rng = np.hypot(xw, yw)
     beyond = ok_input & ~above & ~(rng <= config.max_range_m)
     reason[beyond] = REASON_BEYOND_RANGE
-    valid = reason == REASON_OK
     world = np.column_stack([np.clip(xw, -config.clip_m, config.clip_m), np.clip(yw, -config.clip_m, config.clip_m)])
-    world[~valid] = np.nan
+    return world, reason
+
+
+def _world_covariance(camera, xp: np.ndarray, fused_y: np.ndarray, var_y: np.ndarray, valid: np.ndarray,
+                      stats: CueStatistics) -> np.ndarray:
+    """(N, 2, 2) covariance of the positions: the ideal pixels' pushed through the back-projection's Jacobian."""
+    n = xp.shape[0]
     J = ideal_to_world_jacobian(camera, np.where(valid, xp, 0.0), np.where(valid, fused_y, 0.0))
     cov_px = np.zeros((n, 2, 2))
     cov_px[:, 0, 0] = stats.x_std_px**2
@@ -292,11 +321,7 @@ def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionCo
     covariance = J @ cov_px @ np.swapaxes(J, 1, 2)
     covariance = 0.5 * (covariance + np.swapaxes(covariance, 1, 2))
     covariance[~valid] = np.nan
-    xs, ys = camera.distort(xp, fused_y)
-    screen = np.column_stack([np.asarray(xs, dtype=float).reshape(-1), np.asarray(ys, dtype=float).reshape(-1)])
-    screen[~valid] = np.nan
-    return FusedBoxes(world, covariance, valid, reason, xp, cue_y, np.where(valid, fused_y, np.nan),
-                      np.sqrt(var_y), weights, screen)
+    return covariance
 
 
 def boxes_from_centers(centers, sizes) -> np.ndarray:
@@ -349,289 +374,3 @@ def cue_statistics_of_residuals(resid, x_resid) -> CueStatistics:
     xr = x_resid[ok]
     x_std = max(MAD_TO_SIGMA * float(np.median(np.abs(xr - np.median(xr)))), 0.5)
     return CueStatistics(cov, x_std, int(r_in.shape[0]))
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Per-track online fusion
-
-
-@dataclass
-class ScreenTrack:
-    """One tracked vessel as the fuser receives it (from a ``TrackState`` or a ``VesselTrack`` message)."""
-
-    track_id: str
-    status: int                 # TrackStatus / VesselTrack.STATUS_*
-    center: np.ndarray          # (2,) px
-    size: np.ndarray            # (2,) px
-    confidence: float
-    updated: bool               # a detection was associated in this frame
-    detection_count: int = 0
-    first_seen: float = math.nan
-    last_seen: float = math.nan
-    center_cov: np.ndarray | None = None
-    velocity_px: np.ndarray | None = None
-
-    @property
-    def box_xyxy(self) -> np.ndarray:
-        """(4,) box around the centre."""
-        return boxes_from_centers(self.center, self.size)[0]
-
-
-STATUS_LOST = 3
-STATUS_TENTATIVE = 0
-
-
-@dataclass
-class WorldTrack:
-    """A track after fusion: the screen track plus its filtered sea-plane state (NaN when unknown)."""
-
-    screen: ScreenTrack
-    stamp: float
-    has_world: bool = False
-    position: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
-    velocity: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
-    position_covariance: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
-    velocity_covariance: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
-    latitude: float = math.nan
-    longitude: float = math.nan
-    distance_m: float = math.nan
-    bearing_deg: float = math.nan
-    expected_error_m: float = math.nan
-    is_target: bool = False
-    score: float = 0.0
-    measured_position: np.ndarray | None = None   # this frame's fused (unfiltered) position, if any
-    measured_covariance: np.ndarray | None = None
-    measured_screen: np.ndarray | None = None     # the fused point on screen, px
-    rejected_reason: str = ""                     # why this frame's box gave no position ("" if it did)
-
-
-class TrackFuser:
-    """Per-frame fusion, per-track world Kalman filter and online target selection.
-
-    The filters follow the selection's view of identity: a track the selection joins to an earlier one continues
-    that one's filter, and a track whose filter restarts after ``motion.max_rejections`` outliers in a row has its
-    selection history ended (``OnlineTargetSelector.identity_changed``).
-
-    ``update(stamp, tracks)`` takes every track of one image (``ScreenTrack``) and returns a ``WorldTrack``
-    for each. ``counts`` records bad input and rejections by kind (for the node's diagnostics).
-    """
-
-    def __init__(self, camera, distance_model: BoxSizeDistanceModel | None = None,
-                 fusion_config: FusionConfig | None = None, cue_stats: CueStatistics | None = None,
-                 motion_config: MotionConfig | None = None, selection_config: SelectionConfig | None = None,
-                 error_model: ErrorModel | None = None, water_level=None, water_level_max_hold_s: float = 900.0):
-        if camera.camera_lat is None:
-            raise DataError("fuser: the camera model has no position (camera_lat/camera_lon); set them in the "
-                            "calibration file")
-        if water_level is not None and not math.isfinite(camera.water_level_m):
-            raise DataError(f"fuser: a water-level file is set ({water_level.source or 'water_level.file'}) but the "
-                            "calibration has no camera.water_level_m to correct from; re-run calibrate with "
-                            "--water-level FILE.csv, or set water_level.file to ''")
-        self.camera = camera
-        self.water_level = water_level
-        self.water_level_max_hold_s = float(water_level_max_hold_s)
-        self.distance_model = distance_model or BoxSizeDistanceModel()
-        self.fusion_config = fusion_config or FusionConfig()
-        self.cue_stats = cue_stats or CueStatistics()
-        self.motion_config = motion_config or MotionConfig()
-        self.selector = OnlineTargetSelector(selection_config or SelectionConfig())
-        self.error_model = error_model or ErrorModel()
-        self.filters: dict[str, WorldKalmanFilter] = {}
-        self._ended_filters: dict[str, WorldKalmanFilter] = {}   # of ended tracks, while a join may continue them
-        self._shapes: dict[str, deque] = {}   # recent (aspect, height) of each track's boxes (shape_jump, height_drop)
-        self.last_stamp: float | None = None
-        self.counts: dict[str, int] = {}
-
-    def _count(self, kind: str) -> None:
-        self.counts[kind] = self.counts.get(kind, 0) + 1
-
-    def reset(self) -> None:
-        """Forget every track (a replay restarted)."""
-        self.filters.clear()
-        self._ended_filters.clear()
-        self._shapes.clear()
-        self.selector.reset()
-        self.last_stamp = None
-
-    def snapshot(self) -> dict:
-        """The world filters and selection history ``restore`` needs to carry on in another process, as plain data.
-
-        Numbers, strings, containers and numpy arrays only: what a state file holds (``vessel_common.state_file``).
-        Each world filter and the selector by its attributes, except the settings (the restored fuser's own).
-        """
-        def filters(by_id: dict) -> dict:
-            return {track_id: fields_of(kf, skip=("config",)) for track_id, kf in by_id.items()}
-
-        return {"filters": filters(self.filters), "ended_filters": filters(self._ended_filters),
-                "shapes": {track_id: list(shapes) for track_id, shapes in self._shapes.items()},
-                "selector": object_state(self.selector, _Running, skip=("config",)), "last_stamp": self.last_stamp}
-
-    def restore(self, snapshot: dict) -> None:
-        """Carry on from ``snapshot()`` of a fuser with the same settings (a node restarted after a crash).
-
-        ValueError (KeyError, TypeError) for a snapshot with other fields than this version's: the fuser is then
-        left as it was.
-        """
-        def filters(by_id: dict) -> dict:
-            return {str(track_id): set_fields(WorldKalmanFilter(self.motion_config), fields, "a world filter",
-                                              skip=("config",)) for track_id, fields in dict(by_id).items()}
-
-        shapes = {str(track_id): deque(((float(aspect), float(height)) for aspect, height in history),
-                                       maxlen=SHAPE_HISTORY) for track_id, history in dict(snapshot["shapes"]).items()}
-        selector = restore_object(OnlineTargetSelector(self.selector.config), snapshot["selector"], _Running,
-                                  "the target selection", skip=("config",))
-        restored = (filters(snapshot["filters"]), filters(snapshot["ended_filters"]), shapes, selector,
-                    None if snapshot["last_stamp"] is None else float(snapshot["last_stamp"]))
-        self.filters, self._ended_filters, self._shapes, self.selector, self.last_stamp = restored
-
-    def update(self, stamp: float, tracks: list[ScreenTrack]) -> list[WorldTrack]:
-        """Fuse one frame's tracks; raises DataError only for a non-finite stamp."""
-        stamp = float(stamp)
-        if not math.isfinite(stamp):
-            raise DataError(f"fuser: stamp must be finite seconds, got {stamp}")
-        if self.last_stamp is not None and stamp < self.last_stamp:
-            self._count("stamp_backwards")
-            self.reset()
-        elif self.last_stamp is not None and stamp - self.last_stamp > self.motion_config.max_gap_s:
-            self._count("gap")
-        self.last_stamp = stamp
-        good: list[ScreenTrack] = []
-        out: list[WorldTrack] = []
-        for track in tracks:
-            if not (np.all(np.isfinite(track.center)) and np.all(np.isfinite(track.size)) and
-                    np.all(np.asarray(track.size) > 0)):
-                self._count("invalid_track")
-                out.append(WorldTrack(track, stamp, rejected_reason=REASON_NAMES[REASON_INVALID_INPUT]))
-                if track.status == STATUS_LOST:
-                    self.filters.pop(track.track_id, None)
-                continue
-            good.append(track)
-        measured = [t for t in good if t.updated and t.status != STATUS_LOST]
-        fused = None
-        if measured:
-            boxes = np.array([t.box_xyxy for t in measured]).reshape(-1, 4)
-            fused = fuse_boxes(self.camera_at(stamp), self.distance_model, boxes, self.fusion_config, self.cue_stats)
-        fused_by_id = {t.track_id: i for i, t in enumerate(measured)}
-        world_tracks: list[WorldTrack] = []
-        changed_identity: list[str] = []
-        for track in good:
-            wt = WorldTrack(track, stamp)
-            kf = self.filters.get(track.track_id)
-            result: FilterOutput | None = None
-            if track.status == STATUS_LOST:
-                if kf is not None and kf.initialised:
-                    result = kf.predict(stamp)
-                    self._ended_filters[track.track_id] = kf
-                self.filters.pop(track.track_id, None)
-            elif track.track_id in fused_by_id:
-                i = fused_by_id[track.track_id]
-                if kf is None:
-                    kf = self.filters[track.track_id] = WorldKalmanFilter(self.motion_config)
-                if fused.valid[i]:
-                    wt.measured_position = fused.world[i].copy()
-                    wt.measured_covariance = fused.covariance[i] * self._shape_factor(track)
-                    wt.measured_screen = fused.screen[i].copy()
-                    result = kf.update(stamp, fused.world[i], wt.measured_covariance)
-                    if result is not None and not result.accepted and not result.restarted:
-                        self._count("outlier_rejected")
-                    if result is not None and result.restart_reason == "rejections":
-                        self._count("identity_changed")
-                        changed_identity.append(track.track_id)
-                else:
-                    wt.rejected_reason = REASON_NAMES[int(fused.reason[i])]
-                    self._count(wt.rejected_reason)
-                    result = kf.predict(stamp) if kf.initialised else None
-            elif kf is not None and kf.initialised:
-                result = kf.predict(stamp)
-            if result is not None:
-                self._fill_world(wt, result)
-            world_tracks.append(wt)
-        present = {t.track_id for t in tracks}
-        for tid in [t for t in self.filters if t not in present]:
-            self._ended_filters[tid] = self.filters.pop(tid)  # vanished without a LOST report
-        live = {t.track_id for t in good if t.status != STATUS_LOST}
-        self._shapes = {tid: history for tid, history in self._shapes.items() if tid in live}
-        for tid in changed_identity:
-            self.selector.identity_changed(tid, stamp)
-        target = self.selector.update(stamp, world_tracks)
-        self._continue_filters(stamp, world_tracks)
-        max_gap = self.selector.config.join_max_gap_s
-        self._ended_filters = {tid: kf for tid, kf in self._ended_filters.items()
-                               if kf.stamp is not None and 0 <= stamp - kf.stamp <= max_gap}
-        for wt in world_tracks:
-            wt.score = self.selector.score(wt.screen.track_id)
-            wt.is_target = target is not None and wt.screen.track_id == target and wt.screen.status != STATUS_LOST
-        return out + world_tracks
-
-    def camera_at(self, stamp: float):
-        """The camera for the water level at ``stamp`` (the calibration's own without a water-level file)."""
-        if self.water_level is None:
-            return self.camera
-        level = self.water_level.level_at(stamp, self.water_level_max_hold_s)
-        if not math.isfinite(level):
-            self._count("water_level_unknown")
-            return self.camera
-        try:
-            return self.camera.at_water_level(level)
-        except CalibrationError:
-            self._count("water_level_unusable")
-            return self.camera
-
-    def _shape_factor(self, track: ScreenTrack) -> float:
-        """Covariance multiplier of this frame's box: ``shape_jump_variance_factor`` if it is suspect, else 1.
-
-        Suspect: its aspect jumped up, or its height dropped, against the track's recent boxes.
-        """
-        config = self.fusion_config
-        history = self._shapes.setdefault(track.track_id, deque(maxlen=SHAPE_HISTORY))
-        aspect = float(track.size[1] / track.size[0])
-        height = float(track.size[1])
-        aspects = [a for a, _ in history]
-        heights = [h for _, h in history][-HEIGHT_HISTORY:]
-        jumped = config.shape_jump_ratio > 0 and len(aspects) >= 2 and aspect > config.shape_jump_ratio * float(
-            np.median(aspects))
-        dropped = config.height_drop_ratio > 0 and len(heights) >= 2 and height < config.height_drop_ratio * float(
-            np.median(heights))
-        history.append((aspect, height))
-        if jumped:
-            self._count("shape_jump")
-        if dropped:
-            self._count("height_drop")
-        return config.shape_jump_variance_factor if jumped or dropped else 1.0
-
-    def _continue_filters(self, stamp: float, world_tracks: list[WorldTrack]) -> None:
-        """A track the selection joined to an earlier one (``selector.continued``) continues that one's filter too.
-
-        Its own filter started from this frame's measurement with no velocity; the earlier track's filter knows
-        how the vessel was moving, so the next frames are gated against that motion (a track that then jumps onto
-        another vessel is seen by the world gate: ``identity_changed``).
-        """
-        by_id = {wt.screen.track_id: wt for wt in world_tracks}
-        for new_id, old_id in self.selector.continued.items():
-            wt = by_id.get(new_id)
-            old = self._ended_filters.pop(old_id, None)
-            if old is None and old_id in self.filters:
-                old = copy.deepcopy(self.filters[old_id])  # a handover: the old track still coasts on its own
-            if wt is None or old is None or not old.initialised or wt.measured_position is None:
-                continue
-            result = old.update(stamp, wt.measured_position, wt.measured_covariance)
-            if result is None:
-                continue
-            if not result.accepted and not result.restarted:
-                self._count("outlier_rejected")
-            self.filters[new_id] = old
-            self._fill_world(wt, result)
-
-    def _fill_world(self, wt: WorldTrack, result: FilterOutput) -> None:
-        clip = self.fusion_config.clip_m
-        position = np.clip(result.position, -clip, clip)
-        wt.has_world = True
-        wt.position = position
-        wt.velocity = result.velocity
-        wt.position_covariance = result.position_covariance
-        wt.velocity_covariance = result.velocity_covariance
-        lat, lon = geodesy.local_to_gps(position[0], position[1], self.camera.camera_lat, self.camera.camera_lon)
-        wt.latitude, wt.longitude = float(lat), float(lon)
-        wt.distance_m = float(np.hypot(position[0], position[1]))
-        wt.bearing_deg = float(geodesy.bearing_deg(self.camera.camera_lat, self.camera.camera_lon, lat, lon))
-        wt.expected_error_m = float(self.error_model.expected_error_m(wt.distance_m))

@@ -15,8 +15,8 @@ from vessel_common.parameter_table import Param, ParameterTable, standby_row, st
 from vessel_track.error_model import KINDS as ERROR_MODEL_KINDS
 from vessel_track.fuser_settings import OFFLINE_TARGETS, FuserSettings
 from vessel_track.fusion import SCREEN_SOURCES, WEIGHT_MODES
-from vessel_track.selection import CONFIDENCE_SCORES
-from vessel_track.tracker import ASSOCIATION_METHODS, DISTANCE_METRICS, PROCESS_NOISE_MODELS, TrackerConfig
+from vessel_track.selection_config import CONFIDENCE_SCORES
+from vessel_track.tracker_config import ASSOCIATION_METHODS, DISTANCE_METRICS, PROCESS_NOISE_MODELS, TrackerConfig
 
 _TRACKER_DESCRIPTIONS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "measurement_std_px": ("Std of a detection's box centre, px (paper: 10 px at half resolution).", (1e-3, 1e4)),

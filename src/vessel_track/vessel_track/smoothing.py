@@ -298,6 +298,20 @@ def rts_smooth(stamps, z, R, config: MotionConfig | None = None, mask=None) -> S
     if not usable.any():
         raise DataError("smoother: the trajectory has no usable measurement")
     first = int(np.argmax(usable))
+    predicted, filtered, log_likelihood = _forward_pass(stamps, z, R, usable, first, config)
+    xs, Ps = _backward_pass(stamps, predicted, filtered, first, config)
+    return SmoothedTrajectory(stamps, xs, Ps, usable, 1, log_likelihood, config.accel_psd)
+
+
+def _forward_pass(stamps: np.ndarray, z: np.ndarray, R: np.ndarray, usable: np.ndarray, first: int,
+                  config: MotionConfig) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], float]:
+    """The Kalman filter from the first usable measurement on, and the likelihood of the measurements it used.
+
+    Returns (predicted states, covariances) and (filtered states, covariances) at every time (zeros before
+    ``first``), and the log-likelihood of the used measurements' innovations. A measurement outside the gate is
+    predicted to with the process noise times ``manoeuvre_factor`` (a vessel turning or accelerating hard).
+    """
+    n = stamps.shape[0]
     x_pred = np.zeros((n, 4))
     P_pred = np.zeros((n, 4, 4))
     x_filt = np.zeros((n, 4))
@@ -333,6 +347,16 @@ def rts_smooth(stamps, z, R, config: MotionConfig | None = None, mask=None) -> S
             I_KH = np.eye(4) - K @ _H
             P = I_KH @ P @ I_KH.T + K @ R[i] @ K.T
         x_filt[i], P_filt[i] = x, P
+    return (x_pred, P_pred), (x_filt, P_filt), log_likelihood
+
+
+def _backward_pass(stamps: np.ndarray, predicted: tuple[np.ndarray, np.ndarray],
+                   filtered: tuple[np.ndarray, np.ndarray], first: int,
+                   config: MotionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Rauch-Tung-Striebel from the last time back to ``first``, then extrapolated back to the times before it."""
+    x_pred, P_pred = predicted
+    x_filt, P_filt = filtered
+    n = stamps.shape[0]
     xs = x_filt.copy()
     Ps = P_filt.copy()
     for i in range(n - 2, first - 1, -1):
@@ -345,7 +369,7 @@ def rts_smooth(stamps, z, R, config: MotionConfig | None = None, mask=None) -> S
         F = cv_transition(dt)
         xs[i] = F @ xs[i + 1]
         Ps[i] = F @ Ps[i + 1] @ F.T + cv_process_noise(dt, config.accel_psd)
-    return SmoothedTrajectory(stamps, xs, Ps, usable, 1, log_likelihood, config.accel_psd)
+    return xs, Ps
 
 
 def most_likely_noise(stamps, z, R, config: MotionConfig | None = None,

@@ -39,13 +39,8 @@ from vessel_track.message_checks import (
 )
 from vessel_track.node_params import main_with_checks
 from vessel_track.parameter_tables import EVERY_CLASS, TRACKER_PARAMETERS
-from vessel_track.tracker import (
-    MultiTargetTracker,
-    TrackerConfig,
-    TrackerCounters,
-    TrackState,
-    node_values,
-)
+from vessel_track.tracker import MultiTargetTracker, TrackerCounters, TrackState
+from vessel_track.tracker_config import TrackerConfig, node_values
 
 PROBLEMS = {
     "detections_invalid": "detections with NaN/inf coordinates or a width/height below min_box_size_px "

@@ -65,11 +65,13 @@ from vessel_tools.track.pipeline_results import (
     write_tracks_csv,
 )
 from vessel_track.fuser_settings import FuserSettings, load_fuser_settings
-from vessel_track.fusion import SCREEN_SOURCES, ScreenTrack, TrackFuser
+from vessel_track.fusion import SCREEN_SOURCES
+from vessel_track.offline_selection import Trajectory, select_target
 from vessel_track.parameter_tables import GPS_PUBLISHER_PARAMETERS
-from vessel_track.selection import Trajectory, select_target
 from vessel_track.smoothing import most_likely_noise, rts_smooth, smooth_with_outlier_masking
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig, load_tracker_config, node_values
+from vessel_track.track_fuser import ScreenTrack, TrackFuser
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig, load_tracker_config, node_values
 
 MODES = ("online", "offline")
 

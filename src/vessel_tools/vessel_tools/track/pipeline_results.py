@@ -15,7 +15,7 @@ import numpy as np
 
 from vessel_calib import geodesy
 from vessel_tools.track.offline_data import PREDICTION_HEADER, atomic_lines, prediction_line, seconds_of_day
-from vessel_track.fusion import WorldTrack
+from vessel_track.track_fuser import WorldTrack
 
 
 @dataclass

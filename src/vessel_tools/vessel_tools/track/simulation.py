@@ -27,7 +27,8 @@ from vessel_tools.track.tracking_score import SimFrame, SimResult, VesselTruth, 
 from vessel_track.distance_model import BoxSizeDistanceModel, depth_scale
 from vessel_track.fuser_settings import FuserSettings
 from vessel_track.fusion import fit_cue_statistics
-from vessel_track.tracker import MultiTargetTracker, TrackerConfig
+from vessel_track.tracker import MultiTargetTracker
+from vessel_track.tracker_config import TrackerConfig
 
 CHALLENGE_H = ((-441.0, 379.0, -1000.0), (-217.0, -56.5, -548.0), (-0.512, -0.144, 1.0))
 """The paper's homography of the challenge camera with its sign typo corrected (``aitas/camera.json``)."""
