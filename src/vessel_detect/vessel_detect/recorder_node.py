@@ -120,8 +120,9 @@ class RecorderNode(Node):
         self._untimed: list[tuple[TopicPlan, bytes]] = []
         steady_timer(self, self.discovery_period_s, self._discover)
         self._flushed = 0
+        self._flush_timer = None
         if self.flush_period_s > 0:  # what came before a lull is on disk too, not only once the next message comes
-            steady_timer(self, self.flush_period_s, self._flush)
+            self._flush_timer = steady_timer(self, self.flush_period_s, self._flush)
         self._discover()
         self.get_logger().info(
             f"recording {', '.join(p.name for p in self.plans)} into {self.output} (SIGINT to stop and close)"
@@ -244,6 +245,8 @@ class RecorderNode(Node):
         if self._closed:
             return
         self._closed = True
+        if self._flush_timer is not None:  # no flush of a writer being closed, whatever wakes the executor next
+            self._flush_timer.cancel()
         for plan, cdr in self._untimed:  # nothing ever gave them a time: the wall clock's
             self._write(plan, cdr, time.time_ns())
         self._untimed.clear()
