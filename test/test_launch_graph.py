@@ -139,7 +139,10 @@ def test_respawn_restarts_a_killed_camera_and_recorder_which_carry_on(managed, r
     assert not __import__("os").path.exists(state_dir), "the launch left its state folder behind"
     assert fixes == images[images.index(fixes[0]):], output[-3000:]  # none lost or sent twice after the first
     assert recording_parts(recording) == [recording, tmp_path / "recording.1"]
-    with BagReader(tmp_path / "recording.1") as reader:
+    # Launch may stop the last recorder before it closes its bag (SIGTERM after SIGINT): what it wrote recovers.
+    from vessel_detect.bag_salvage import SalvagedBagReader
+
+    with SalvagedBagReader(tmp_path / "recording.1") as reader:
         assert reader.message_count("/vessel/fix") > 0
 
 
