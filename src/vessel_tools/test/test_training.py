@@ -87,11 +87,6 @@ def test_the_model_card_records_the_train_command_as_typed(monkeypatch):
     assert seen == ["./vessel detect train --videos 7-9"]
 
 
-def test_the_gps_gap_option_is_checked():
-    for value in ("nan", "0", "-3", "61"):
-        _train_is_refused(["--max-gps-gap", value], "--max-gps-gap")
-
-
 def test_a_frame_between_fixes_further_apart_than_max_gps_gap_is_not_projected():
     """The vessel's position is interpolated only inside a gap no longer than ``max_gap_s``."""
     from types import SimpleNamespace

@@ -38,8 +38,6 @@ def add_parser(sub) -> None:
 
 def _add_data_arguments(train: argparse.ArgumentParser) -> None:
     """The frames, calibration, seed boxes and start model ``train`` reads, and the model it writes."""
-    from vessel_tools.detect.training.labels import LabelSettings
-
     train.add_argument("--data", help="dataset folder (default: $VESSEL_DATA or ../shared/aitas)")
     train.add_argument("--videos", default="7-12", help="training videos (default 7-12)")
     train.add_argument("--val-videos", default="",
@@ -56,10 +54,6 @@ def _add_data_arguments(train: argparse.ArgumentParser) -> None:
                             "(default config/detector_coco.yaml)")
     train.add_argument("--coco-detections", help="a saved `detect run --params config/detector_coco.yaml` CSV of "
                        "these frames (default: run the COCO detector now)")
-    train.add_argument("--max-gps-gap", type=float, default=LabelSettings().max_gps_gap_s,
-                       help="longest time between the two GPS fixes bracketing a frame for its position to be "
-                            "interpolated and the frame labelled, s; frames in longer gaps are left out "
-                            "(default %(default)g)")
     train.add_argument("--init-model", help="start weights, ONNX (default: the shared COCO YOLOX-Nano)")
 
 
@@ -204,8 +198,6 @@ def _train_settings(args: argparse.Namespace) -> TrainSettings:
                                                      **_colour_jitter(args.colour_jitter)))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
-    if not (math.isfinite(args.max_gps_gap) and 0 < args.max_gps_gap <= 60):
-        raise DataError(f"--max-gps-gap must be a number of seconds above 0 and at most 60, got {args.max_gps_gap}")
     return settings
 
 
@@ -229,7 +221,7 @@ def _training_data(args: argparse.Namespace) -> _TrainingData:
     init_model = _init_model(args)
     water = _water_levels(args, args.params)
     detections = coco_detections(args, dataset, frames, camera)
-    label_settings = LabelSettings(max_gps_gap_s=args.max_gps_gap)
+    label_settings = LabelSettings()
     labels, size_model = generate_labels(dataset, camera, frames, detections, label_settings, water)
     usable = [lab for lab in labels if lab.status != "gps_invalid"]
     val_only = [f for f in dataset.frames(val_videos) if f.video not in set(videos)] if val_videos and videos else []
