@@ -8,7 +8,7 @@ or read-only (rclpy refuses the change, and the descriptor says to restart the n
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
@@ -81,8 +81,3 @@ def _on_set(node: Node, table: ParameterTable, changed, apply: ApplyChanges) -> 
 def _refused(node: Node, reason: str) -> SetParametersResult:
     node.get_logger().warning(f"parameter change refused: {reason}")
     return SetParametersResult(successful=False, reason=reason)
-
-
-def table_values(values: Mapping[str, Any], prefix: str) -> dict[str, Any]:
-    """The values under ``prefix.`` with the prefix removed (a sub-block of a flat mapping)."""
-    return {name[len(prefix) + 1:]: value for name, value in values.items() if name.startswith(prefix + ".")}

@@ -133,9 +133,6 @@ class ParameterTable:
         return replace(self, params=tuple(replace(p, default=defaults[p.name]) if p.name in defaults else p
                                           for p in self.params))
 
-    def __add__(self, more: Sequence[Param]) -> ParameterTable:
-        return replace(self, params=self.params + tuple(more))
-
 
 def yaml_scalar(value: Any) -> str:
     """One YAML value on one line: floats exactly (``repr``), NaN and infinities as YAML writes them."""

@@ -133,7 +133,6 @@ NODE_PARAMS: tuple[Param, ...] = (
 DETECTOR_PARAMETERS = ParameterTable(NODE_NAME, "Detector node (vessel_detect detector): images -> vessel boxes "
                                      "(vision_msgs-style Detection2DArray).",
                                      MODEL_PARAMS + DETECTION_PARAMS + NODE_PARAMS)
-_BY_NAME = {param.name: param for param in DETECTOR_PARAMETERS}
 
 
 def default_values() -> dict[str, Any]:
@@ -147,11 +146,11 @@ def merge_values(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
     for key, value in flatten(overrides or {}).items():
         if key in ("camera", "qos_overrides") or str(key).startswith("camera.") or is_rcl_parameter(str(key)):
             continue
-        if key not in _BY_NAME:
+        if key not in DETECTOR_PARAMETERS:
             raise VesselError(
-                f"unknown detector parameter '{key}'; known: {', '.join(sorted(_BY_NAME))}"
+                f"unknown detector parameter '{key}'; known: {', '.join(sorted(DETECTOR_PARAMETERS.names))}"
             )
-        default = _BY_NAME[key].default
+        default = DETECTOR_PARAMETERS[key].default
         values[key] = _coerce(key, value, default)
     return values
 
@@ -289,7 +288,7 @@ def load_params_files(paths, node_name: str = NODE_NAME) -> tuple[dict[str, Any]
         if not path:
             continue
         blocks = read_params_yaml(path)
-        overrides.update({k: v for k, v in flatten(blocks.get("/**") or {}).items() if k in _BY_NAME})
+        overrides.update({k: v for k, v in flatten(blocks.get("/**") or {}).items() if k in DETECTOR_PARAMETERS})
         for name in (node_name, f"/{node_name}"):
             overrides.update(flatten(blocks.get(name) or {}))
         for params in node_blocks(blocks, node_name):
