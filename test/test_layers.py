@@ -40,23 +40,26 @@ _BY_LAYER = {
                  vessel_detect vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.calibration_parameters vessel_calib.params vessel_calib.gps_track
                vessel_calib.water_level vessel_calib.pinhole vessel_calib.radial_lens vessel_calib.camera_model_params
+               vessel_calib.own_ship vessel_calib.camera_pose vessel_calib.attitude
+               vessel_detect.frame_pose vessel_detect.image_view vessel_detect.annotation vessel_track.pose_input
                vessel_detect.box_ops vessel_detect.decoders vessel_detect.tiling vessel_detect.masks
                vessel_detect.image_codec vessel_detect.image_queue vessel_detect.appearance_model
                vessel_detect.size_prior vessel_detect.detector vessel_detect.model_store vessel_detect.detector_params
                vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing
-               vessel_detect.resume_files
+               vessel_detect.resume_files vessel_detect.horizon
                vessel_detect.class_names vessel_detect.network_input vessel_detect.bag_topics
                vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings vessel_track.parameter_tables vessel_track.message_checks
                vessel_track.tracker_config vessel_track.association vessel_track.track_record
                vessel_track.selection_config vessel_track.trajectory_scoring vessel_track.offline_selection
-               vessel_track.track_fuser""",
+               vessel_track.track_fuser vessel_track.collision""",
     "ros": """vessel_common.qos vessel_common.health vessel_common.parameter_declaration vessel_common.node_state
               vessel_common.lifecycle vessel_common.run vessel_common.node_parameters vessel_calib.camera_parameters
               vessel_detect.bag_messages vessel_detect.bag_writer vessel_detect.bag_reader vessel_detect.bag_salvage
               vessel_detect.ros_messages vessel_detect.image_source vessel_detect.file_sources
-              vessel_detect.live_sources vessel_detect.source_spec vessel_track.node_params""",
+              vessel_detect.live_sources vessel_detect.source_spec vessel_track.node_params
+              vessel_detect.own_ship_messages vessel_detect.pose_messages""",
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
                 vessel_track.gps_publisher_node""",
@@ -64,9 +67,10 @@ _BY_LAYER = {
     "tools": """vessel_tools.calib vessel_tools.calib.dataset vessel_tools.calib.calibration
                 vessel_tools.calib.calibration_plot vessel_tools.calib.gps_association
                 vessel_tools.calib.pairs_csv vessel_tools.calib.pair_checks vessel_tools.calib.homography
-                vessel_tools.calib.box_anchor
+                vessel_tools.calib.box_anchor vessel_tools.calib.far_edge
                 vessel_tools.detect vessel_tools.detect.dataset_detection vessel_tools.detect.detect_cli
                 vessel_tools.detect.frame_boxes vessel_tools.detect.bag_build vessel_tools.detect.recall
+                vessel_tools.detect.bag_merge vessel_tools.detect.own_ship_bag
                 vessel_tools.detect.training vessel_tools.detect.training.augment vessel_tools.detect.training.labels
                 vessel_tools.detect.training.loss vessel_tools.detect.training.model
                 vessel_tools.detect.training.model_card

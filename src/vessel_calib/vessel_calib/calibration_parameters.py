@@ -42,6 +42,14 @@ CALIBRATION_ROWS: tuple[Param, ...] = (
           "the tide (calibrate --water-level writes it)."),
     Param(f"{PREFIX}.height_m", math.nan,
           "Camera height above the water at water_level_m, m; NaN: derived from H (calibrate writes it)."),
+    Param(f"{PREFIX}.reference_attitude_deg", [math.nan, math.nan, math.nan],
+          "The ship's [heading, pitch, roll] (degrees; heading from true north, pitch bow up, roll starboard down) "
+          "at which H holds: with the ship's attitude per image it gives every image's pose. NaN: the ship points "
+          "where the camera looks, level (a fixed camera)."),
+    Param(f"{PREFIX}.far_edge_ideal_abc", [math.nan, math.nan, math.nan],
+          "The sea's far edge (sea-sky or sea-shore line) at the reference attitude: a x + b y + c = 0 in ideal "
+          "pixels, the line the horizon measured in each image is compared with (./vessel horizon measures it). "
+          "NaN: the sea's horizon for the camera's height."),
 )
 """``camera.builtin_calibration`` and the calibration's values; the defaults are the challenge camera, the paper's
 calibration with its sign typo corrected (see aitas/camera.json). Every row is read-only."""

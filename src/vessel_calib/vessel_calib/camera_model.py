@@ -74,6 +74,18 @@ def _checked_levels(water_level_m, height_m) -> tuple[float, float]:
     return float(water_level_m), float(height_m)
 
 
+def _checked_triple(values, name: str) -> tuple[float, float, float] | None:
+    """Three finite numbers, or None for absent or all NaN (unknown)."""
+    if values is None:
+        return None
+    triple = tuple(float(v) for v in values)
+    if len(triple) == 3 and all(math.isnan(v) for v in triple):
+        return None
+    if len(triple) != 3 or not all(math.isfinite(v) for v in triple):
+        raise CalibrationError(f"camera.{name} must be 3 finite numbers (or all .nan: unknown), got {list(triple)!r}")
+    return triple
+
+
 def _checked_box_anchor(box_anchor) -> float:
     if not is_number(box_anchor) or not 0.0 <= float(box_anchor) <= 1.0:
         raise CalibrationError(
@@ -162,6 +174,10 @@ class CameraModel:
         water_level_m: the water level H belongs to, in the datum of a water-level table
             (``vessel_calib.water_level``); NaN: the calibration ignored the tide, ``at_water_level`` refuses.
         height_m: the camera's height above the water at ``water_level_m``; NaN: derived from H (``pinhole``).
+        reference_attitude_deg: the ship's (heading, pitch, roll) at which H holds, for a camera on a ship
+            (``vessel_calib.camera_pose``); None: the ship points where the camera looks, level.
+        far_edge_abc: the sea's far edge in ideal pixels at that attitude (a x + b y + c = 0); None: the sea's
+            horizon for the camera's height (``far_edge_line``).
 
     Raises:
         CalibrationError: non-finite or singular H, absurd K1, bad image size or centre, invalid position.
@@ -171,11 +187,15 @@ class CameraModel:
     __slots__ = (
         "_H", "_Hinv", "_lens", "_image_size", "_camera_lat", "_camera_lon",
         "_horizon", "_heading", "_box_anchor", "_water_level_m", "_height_m", "_pinhole",
+        "_reference_attitude", "_far_edge",
     )
 
     def __init__(self, H, K1: float = 0.0, center=(640.0, 360.0), image_size=(1280, 720),
                  camera_lat: float | None = None, camera_lon: float | None = None,
-                 box_anchor: float = PAPER_BOX_ANCHOR, water_level_m: float = math.nan, height_m: float = math.nan):
+                 box_anchor: float = PAPER_BOX_ANCHOR, water_level_m: float = math.nan, height_m: float = math.nan,
+                 reference_attitude_deg=None, far_edge_abc=None):
+        self._reference_attitude = _checked_triple(reference_attitude_deg, "reference_attitude_deg")
+        self._far_edge = _checked_triple(far_edge_abc, "far_edge_ideal_abc")
         self._water_level_m, self._height_m = _checked_levels(water_level_m, height_m)
         self._pinhole: PinholeGeometry | None = None
         self._box_anchor = _checked_box_anchor(box_anchor)
@@ -259,6 +279,28 @@ class CameraModel:
     def height_m(self) -> float:
         """The camera's height above the water at ``water_level_m``: the given value, else derived from H."""
         return self._height_m if math.isfinite(self._height_m) else self.pinhole().height_m
+
+    @property
+    def reference_attitude_deg(self) -> tuple[float, float, float] | None:
+        """The ship's (heading, pitch, roll) at which H holds; None: unknown (a fixed camera)."""
+        return self._reference_attitude
+
+    @property
+    def far_edge_calibrated(self) -> tuple[float, float, float] | None:
+        """The far edge the calibration file gives (``camera.far_edge_ideal_abc``); None: not measured."""
+        return self._far_edge
+
+    def far_edge_line(self) -> tuple[float, float, float]:
+        """The sea's far edge at the reference attitude, ideal pixels: the calibrated line, else the sea's horizon.
+
+        The sea's horizon lies below the vanishing line of the sea plane by the dip of a sphere's horizon seen
+        from the camera's height, sqrt(2 h / R).
+        """
+        if self._far_edge is not None:
+            return self._far_edge
+        a, b, c = self._horizon
+        dip_px = self.pinhole().focal_px * math.sqrt(2.0 * self.height_m / geodesy.EARTH_RADIUS_M)
+        return (a, b, c - dip_px * b)
 
     @property
     def box_anchor(self) -> float:
@@ -516,7 +558,8 @@ class CameraModel:
         S = np.array([[k, 0.0, (1.0 - k) * nx], [0.0, k, (1.0 - k) * ny], [0.0, 0.0, 1.0]])
         return CameraModel(self._H @ S, self.K1, self.center, self._image_size, self._camera_lat,
                            self._camera_lon, self._box_anchor, water_level_m=level,
-                           height_m=self.height_m / k)
+                           height_m=self.height_m / k, reference_attitude_deg=self._reference_attitude,
+                           far_edge_abc=self._far_edge)
 
     # ----------------------------------------------------------------- parameters
     def to_params(self) -> dict:

@@ -47,6 +47,10 @@ def params_of_camera(camera) -> dict:
     if math.isfinite(camera.water_level_m):
         params["water_level_m"] = float(camera.water_level_m)
         params["height_m"] = float(camera.height_m)
+    if camera.reference_attitude_deg is not None:
+        params["reference_attitude_deg"] = [float(v) for v in camera.reference_attitude_deg]
+    if camera.far_edge_calibrated is not None:
+        params["far_edge_ideal_abc"] = [float(v) for v in camera.far_edge_calibrated]
     # Derived, informational (recomputed from H on load); NaN is left out because ROS YAML cannot hold it.
     if math.isfinite(camera.heading_deg):
         params["heading_deg"] = float(camera.heading_deg)
@@ -96,6 +100,13 @@ def camera_arguments_of_params(params: Mapping[str, Any], where: str) -> dict[st
         arguments["box_anchor"] = _number(params, "box_anchor", where)
     arguments["water_level_m"] = _optional_number(params, "water_level_m", where)
     arguments["height_m"] = _optional_number(params, "height_m", where)
+    for key, argument in (("reference_attitude_deg", "reference_attitude_deg"), ("far_edge_ideal_abc", "far_edge_abc")):
+        if key in params:
+            values = params[key]
+            if isinstance(values, str | bytes) or not hasattr(values, "__len__") or not all(
+                    is_number(v) for v in values):
+                raise CalibrationError(f"{where}.{key} must be a list of 3 numbers, got {values!r}")
+            arguments[argument] = [float(v) for v in values]
     return arguments
 
 

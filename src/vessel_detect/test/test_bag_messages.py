@@ -60,6 +60,15 @@ def test_vessel_msgs_round_trip(tmp_path):
         distance_m=155.2,
         bearing_deg=75.0,
         expected_error_m=8.0,
+        pose_sigma_px=np.array([0.0, 0.0]),
+        distance_sigma_m=3.0,
+        bearing_sigma_deg=0.5,
+        has_cpa=True,
+        cpa_m=40.0,
+        cpa_sigma_m=6.0,
+        tcpa_s=30.0,
+        tcpa_sigma_s=4.0,
+        cpa_alert=True,
     )
     with bag_writer.BagWriter(tmp_path / "tracks") as writer:
         writer.add_topic("/vessel/tracks", "vessel_msgs/VesselTrackArray")
@@ -73,3 +82,4 @@ def test_vessel_msgs_round_trip(tmp_path):
     assert got.bbox.center.position.y == 420.0
     assert (got.detection_bbox.center.position.x, got.detection_bbox.size_y) == (641.0, 19.0)
     np.testing.assert_array_equal(got.position_covariance, [25.0, 0.0, 0.0, 25.0])
+    assert (got.has_cpa, got.cpa_m, got.tcpa_s, got.cpa_alert) == (True, 40.0, 30.0, True)

@@ -198,7 +198,8 @@ def test_the_node_parameter_file_holds_the_defaults():
 
 
 def test_annotate_draws_band_masks_and_boxes_at_the_requested_scale(tmp_path):
-    from vessel_detect.detector import Detections, annotate
+    from vessel_detect.annotation import annotate
+    from vessel_detect.detector import Detections
 
     detector = VesselDetector(_model(tmp_path, np.zeros((1, POINTS, 85), np.float32)), DetectorConfig(), 400.0)
     frame = np.zeros((720, 1280, 3), np.uint8)

@@ -15,11 +15,19 @@ import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from vessel_calib.own_ship import (
+    NO_ORIENTATION_COVARIANCE,
+    NOT_MEASURED,
+    ShipAttitude,
+    orientation_covariance,
+    quaternion_of_attitude,
+)
 from vessel_common.errors import DataError
 from vessel_detect.bag_topics import (
     COMPRESSED_IMAGE,
     COVARIANCE_TYPE_APPROXIMATED,
     COVARIANCE_TYPE_UNKNOWN,
+    IMU,
     NAV_SAT_FIX,
     SERVICE_GPS,
     STATUS_FIX,
@@ -181,3 +189,44 @@ def nav_sat_fix(
         position_covariance=cov,
         position_covariance_type=cov_type,
     )
+
+
+def imu(stamp_ns: int, attitude: ShipAttitude | None, frame_id: str = "base_link", sigma_deg: float | None = None,
+        heading_sigma_deg: float | None = None) -> object:
+    """A `sensor_msgs/Imu` holding a ship attitude as its REP-103 orientation (`vessel_calib.own_ship`).
+
+    Compass only: roll and pitch variances -1; no attitude: every orientation variance -1. Angular rate and
+    acceleration are not measured (their covariance's first entry -1).
+    """
+    store = typestore()
+    if attitude is None:
+        quaternion, covariance = (0.0, 0.0, 0.0, 1.0), list(NO_ORIENTATION_COVARIANCE)
+    else:
+        quaternion = quaternion_of_attitude(attitude)
+        covariance = orientation_covariance(attitude, sigma_deg, heading_sigma_deg)
+    Quaternion = store.types["geometry_msgs/msg/Quaternion"]
+    Vector3 = store.types["geometry_msgs/msg/Vector3"]
+    not_measured = np.zeros(9, dtype=np.float64)
+    not_measured[0] = NOT_MEASURED
+    x, y, z, w = quaternion
+    return store.types[IMU](
+        header=header(stamp_ns, frame_id, store),
+        orientation=Quaternion(x=x, y=y, z=z, w=w),
+        orientation_covariance=np.array(covariance, dtype=np.float64),
+        angular_velocity=Vector3(x=0.0, y=0.0, z=0.0),
+        angular_velocity_covariance=not_measured.copy(),
+        linear_acceleration=Vector3(x=0.0, y=0.0, z=0.0),
+        linear_acceleration_covariance=not_measured.copy(),
+    )
+
+
+def camera_pose_not_given(stamp_ns: int, frame_id: str = "camera") -> object:
+    """A ``vessel_msgs/CameraPose`` of a producer that knows no pose (its boxes are in the reference image)."""
+    store = typestore()
+    point = store.types["vessel_msgs/msg/Point2D"](x=0.0, y=0.0)
+    return store.types["vessel_msgs/msg/CameraPose"](
+        header=header(stamp_ns, frame_id, store), valid=False, source=0, problem="", heading_deg=0.0, pitch_deg=0.0,
+        roll_deg=0.0, attitude_covariance=np.zeros(9), camera_rotation_covariance=np.zeros(9),
+        image_to_reference=np.eye(3).ravel(), focal_px=0.0, lens_k1=0.0, lens_center=point, horizon_found=False,
+        horizon_ideal_abc=np.zeros(3), horizon_sigma_px=0.0)
+

@@ -8,10 +8,13 @@ from __future__ import annotations
 DEFAULT_IMAGE_TOPIC = "/camera/image_raw/compressed"
 DEFAULT_CAMERA_FIX_TOPIC = "/camera/fix"
 DEFAULT_GPS_TRUTH_TOPIC = "/vessel/gps_truth"
+DEFAULT_OWN_SHIP_FIX_TOPIC = "/own_ship/fix"
+DEFAULT_OWN_SHIP_IMU_TOPIC = "/own_ship/imu"
 
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE = "sensor_msgs/msg/Image"
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
+IMU = "sensor_msgs/msg/Imu"
 CLOCK = "rosgraph_msgs/msg/Clock"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 DETECTION_2D_ARRAY = "vessel_msgs/msg/Detection2DArray"

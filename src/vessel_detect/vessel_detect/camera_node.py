@@ -2,8 +2,9 @@
 
 Recorded sources replay with their original stamps at a rate factor (1 = real time, 10 = ten times faster, 0 = as
 fast as the graph consumes: each frame waits for the detector's output for the previous one or a timeout), publish
-`/clock` from the stamps so the graph can run with `use_sim_time`, and republish the camera's fix and the vessel's
-GPS truth recorded in a bag. A frame that cannot be read is skipped, counted and logged once; the node never
+`/clock` from the stamps so the graph can run with `use_sim_time`, and republish the camera's fix, the vessel's
+GPS truth and the own ship's position and attitude (a camera on a ship) recorded in a bag, in stamp order with
+the images. A frame that cannot be read is skipped, counted and logged once; the node never
 stops on a bad frame. At the end of a recorded source (without `loop`) it logs a summary and exits with status 0,
 so scripts can wait for it. Progress and frame counts go to `/diagnostics`.
 
@@ -31,7 +32,7 @@ from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CompressedImage, Image, NavSatFix, NavSatStatus
+from sensor_msgs.msg import CompressedImage, Image, Imu, NavSatFix, NavSatStatus
 
 from vessel_common.errors import DataError, VesselError
 from vessel_common.health import NodeHealth
@@ -68,6 +69,9 @@ from vessel_detect.source_spec import open_source
 
 RESUME_MARGIN_S = 0.001
 """A restarted replay opens its source this much before the last item sent (the replay skips up to it by stamp)."""
+OWN_SHIP_QOS_DEPTH = 200
+"""The own ship's fixes and attitudes come at 20 Hz and reach a subscriber in bursts between frames (every frame
+sent as fast as consumed); this holds 10 s of them."""
 
 
 class _CameraPhases:
@@ -118,7 +122,7 @@ class _CameraPhases:
         self.source = open_source(
             p["source"],
             image_topic=p["image_topic"],
-            aux_topics=[p["camera_fix_topic"], p["gps_truth_topic"]] if p["republish"] else [],
+            aux_topics=self._aux_topics(),
             start_utc=self._start_utc,
             fps=p["fps"] or None,
             device_width=p["device_width"],
@@ -152,14 +156,28 @@ class _CameraPhases:
         self.aux_pubs: dict[str, tuple[object, type]] = {}
         self.camera_fix_pub = self._make_publisher(NavSatFix, p["camera_fix_topic"], LATCHED_QOS)
         self.aux_pubs[p["camera_fix_topic"]] = (self.camera_fix_pub, NavSatFix)
-        if p["republish"] and getattr(self.source, "aux_topics", None):
-            if p["gps_truth_topic"] in self.source.aux_topics:
-                self.aux_pubs[p["gps_truth_topic"]] = (
-                    self._make_publisher(NavSatFix, p["gps_truth_topic"], reliable_qos(50)),
-                    NavSatFix,
-                )
+        self._make_aux_publishers()
         if self.rate == 0:
             self._subscribe_acks()
+
+    def _aux_topics(self) -> list[str]:
+        """The bag topics republished beside the images (none without ``republish``)."""
+        p = self.params
+        if not p["republish"]:
+            return []
+        topics = (p["camera_fix_topic"], p["gps_truth_topic"], p["own_ship_fix_topic"], p["own_ship_imu_topic"])
+        return list(dict.fromkeys(topics))
+
+    def _make_aux_publishers(self) -> None:
+        """Publishers of the GPS truth and own-ship topics the source has (the camera fix has its own)."""
+        p = self.params
+        if not (p["republish"] and getattr(self.source, "aux_topics", None)):
+            return
+        for topic, message_type, depth in ((p["gps_truth_topic"], NavSatFix, 50),
+                                           (p["own_ship_fix_topic"], NavSatFix, OWN_SHIP_QOS_DEPTH),
+                                           (p["own_ship_imu_topic"], Imu, OWN_SHIP_QOS_DEPTH)):
+            if topic in self.source.aux_topics and topic not in self.aux_pubs:
+                self.aux_pubs[topic] = (self._make_publisher(message_type, topic, reliable_qos(depth)), message_type)
 
     def _read_resume_file(self) -> dict | None:
         """What the resume file holds (None without one, or when it is not a camera's: then from the first frame)."""

@@ -24,7 +24,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from vessel_common.errors import ModelError, VesselError
@@ -32,6 +31,7 @@ from vessel_detect.appearance_model import rescore_detections
 from vessel_detect.class_names import COCO_CLASSES, find_class_names, read_class_names
 from vessel_detect.decoders import DEFAULT_STRIDES, OutputLayout, decode, detect_layout
 from vessel_detect.image_codec import ImageError
+from vessel_detect.image_view import ImageView, ReferenceGrid
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS, ExclusionMask
 from vessel_detect.model_store import ModelSpec, how_to_get, resolve_model, sha256_of
 from vessel_detect.network_input import LETTERBOX_PAD_VALUE, Letterbox, letterbox
@@ -137,6 +137,7 @@ class DetectorConfig:
     covered_threshold: float = 0.6
     target_class: str = ""
     class_agnostic_nms: bool = False
+    masks_fixed_to: str = "reference"
 
     def validate(self) -> None:
         """Reject values the detector cannot work with; the message names the parameter."""
@@ -151,6 +152,7 @@ class DetectorConfig:
             (self.tile_overlap_px >= 0, "tile_overlap_px must be >= 0"),
             (0.0 <= self.mask_max_inside <= 1.0, "mask_max_inside must be in [0, 1]"),
             (len(self.classes) > 0, "classes must name at least one class (e.g. ['boat'])"),
+            (self.masks_fixed_to in ("reference", "image"), "exclusion_polygons_frame must be reference or image"),
         ]
         for ok, message in checks:
             if not ok:
@@ -421,6 +423,8 @@ class VesselDetector:
         self.size_prior = SizePrior()  # off; build_detector sets it from the parameters, with its camera
         self.size_prior_camera = None
         self.last_window_count = 0
+        self._grid: ReferenceGrid | None = None
+        self._warped = False  # detecting in a warped image: masks fixed to the camera wait for the boxes to go back
 
     @property
     def class_names(self) -> list[str]:
@@ -468,12 +472,19 @@ class VesselDetector:
             ]
         return plan
 
-    def detect(self, bgr: np.ndarray) -> Detections:
-        """Detect vessels in one BGR uint8 frame; boxes in the frame's pixels."""
+    def detect(self, bgr: np.ndarray, view: ImageView | None = None) -> Detections:
+        """Detect vessels in one BGR uint8 frame; boxes in the frame's pixels.
+
+        ``view``: where this image sits relative to the calibration (a camera that moves): the band is warped into
+        the reference image's geometry and detected there (``vessel_detect.image_view``); boxes come back in this
+        image's pixels.
+        """
         image = np.asarray(bgr)
         if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
             raise VesselError(f"detector input must be a (H, W, 3) BGR image, got shape {image.shape}")
         height, width = image.shape[:2]
+        if view is not None and (width, height) == self.reference_wh:
+            return self._detect_in_reference(image, view)
         plan = self.windows((width, height))
         self.last_window_count = len(plan)
         parts = []
@@ -517,6 +528,22 @@ class VesselDetector:
         order = np.argsort(-detections.scores, kind="stable")
         return detections.take(order)
 
+    def _detect_in_reference(self, image: np.ndarray, view: ImageView) -> Detections:
+        """Detect in the band warped into the reference image's geometry, boxes back in the image's pixels."""
+        if self._grid is None:
+            self._grid = ReferenceGrid(view.lens, self.reference_wh)
+        band = self.band(self.reference_wh) if self.config.mode != "full" else (0.0, float(self.reference_wh[1]))
+        self._warped = True
+        try:
+            found = self.detect(view.warp_to_reference(image, band, self._grid))
+        finally:
+            self._warped = False
+        found.boxes_xyxy = view.boxes_to_image(found.boxes_xyxy)
+        keep = np.all(np.isfinite(found.boxes_xyxy), axis=1)
+        if self.mask and self.config.masks_fixed_to == "image":
+            keep &= self.mask.keep(np.nan_to_num(found.boxes_xyxy), self.reference_wh, self.config.mask_max_inside)
+        return found.take(keep)
+
     def _filter(self, detections: Detections, image_wh: tuple[int, int]) -> Detections:
         """Drop empty boxes, boxes standing above the band, and boxes mostly inside an exclusion mask."""
         if len(detections) == 0:
@@ -526,7 +553,7 @@ class VesselDetector:
         if self.config.mode != "full":
             top, _ = self.band(image_wh)
             keep &= boxes[:, 3] > top
-        if self.mask:
+        if self.mask and not (self._warped and self.config.masks_fixed_to == "image"):
             keep &= self.mask.keep(boxes, image_wh, self.config.mask_max_inside)
         return detections.take(keep)
 
@@ -544,25 +571,6 @@ def apply_size_prior(detections: Detections, prior: SizePrior, camera,
     lowered = detections.take(np.arange(len(detections)))
     lowered.p_target = prior.apply(lowered.p_target, ratios)
     return lowered
-
-
-def annotate(bgr: np.ndarray, detections: Detections, detector: VesselDetector, scale: float = 0.5) -> np.ndarray:
-    """A copy of the frame at ``scale`` with the processed band, the masks and the boxes with scores drawn."""
-    height, width = bgr.shape[:2]
-    size = (max(1, int(round(width * scale))), max(1, int(round(height * scale))))
-    image = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
-    top, bottom = detector.band((width, height))
-    for y in (top, bottom - 1):
-        row = int(round(y * scale))
-        cv2.line(image, (0, row), (size[0] - 1, row), (255, 200, 0), 1)
-    for polygon in detector.mask.scaled_polygons((width, height)):
-        cv2.polylines(image, [np.round(polygon * scale).astype(np.int32)], True, (0, 0, 255), 1)
-    for box, score, label in zip(detections.boxes_xyxy, detections.scores, detections.labels(), strict=True):
-        x1, y1, x2, y2 = (int(round(v * scale)) for v in box)
-        cv2.rectangle(image, (x1, y1), (x2, y2), (0, 255, 0), 1)
-        cv2.putText(image, f"{label} {score:.2f}", (x1, max(8, y1 - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.35,
-                    (0, 255, 0), 1, cv2.LINE_AA)
-    return image
 
 
 def _whole_window(x0: int, y0: int, x1: int, y1: int, net_wh: tuple[int, int], image_wh: tuple[int, int]) -> Window:

@@ -30,7 +30,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CompressedImage, Image, Imu
 
 from vessel_calib.camera_parameters import declare_camera_model
 from vessel_common.errors import VesselError
@@ -39,14 +39,24 @@ from vessel_common.lifecycle import PhasedLifecycle, release_publisher
 from vessel_common.node_parameters import declare_table
 from vessel_common.qos import SENSOR_DATA_QOS, image_qos_profile, reliable_qos, stamp_to_sec
 from vessel_common.run import main_for
-from vessel_detect.detector import Detections, annotate
-from vessel_detect.detector_params import DETECTOR_PARAMETERS, NODE_NAME, build_detector, detector_config
+from vessel_detect.annotation import annotate
+from vessel_detect.detector import Detections
+from vessel_detect.detector_params import (
+    DETECTOR_PARAMETERS,
+    NODE_NAME,
+    attitude_settings,
+    build_detector,
+    detector_config,
+    frame_poser,
+)
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
 from vessel_detect.image_queue import ImageQueue, QueuedImage
-from vessel_msgs.msg import Detection2D, Detection2DArray, ObjectHypothesisWithPose
+from vessel_detect.own_ship_messages import sample_attitude_of_imu
+from vessel_detect.pose_messages import camera_pose_msg
+from vessel_msgs.msg import CameraPose, Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
 PROBLEM_KINDS = ("bad_encoding", "empty_image", "bad_image_size", "wrong_image_size", "undecodable_image",
-                 "detector_error")
+                 "detector_error", "stale_pose", "no_pose", "bad_attitude", "horizon_not_found", "horizon_rejected")
 EVENT_KINDS = ("frames_received", "frames_processed", "dropped_frames", "detections_published")
 LATENCY_WINDOW = 200
 
@@ -116,6 +126,8 @@ class _DetectorPhases:
             raise VesselError("detector subscribes to nothing: set subscribe_compressed or subscribe_raw to true")
         self.detections_pub = None
         self.annotated_pub = None
+        self.pose_pub = None
+        self.poser = None
         self._image_subscriptions = []
         self._worker = None
         self._decode_ahead_thread = None
@@ -137,6 +149,7 @@ class _DetectorPhases:
     def _configure(self) -> None:
         values = self.values
         self.detector = build_detector(values, self.camera)
+        self.poser = frame_poser(values, self.camera)
         if self.detector.horizon_y is None:
             self.get_logger().warning("the calibration gives no horizon in the image: processing the whole height")
         self.health.set_value("windows_per_frame", len(self.detector.windows(self.detector.reference_wh)))
@@ -145,6 +158,7 @@ class _DetectorPhases:
         self.health.watch_subscribers(self.detections_pub)
         if values["publish_annotated"]:
             self.annotated_pub = self._make_publisher(Image, values["annotated_topic"], SENSOR_DATA_QOS)
+        self.pose_pub = self._make_publisher(CameraPose, values["pose.topic"], reliable_qos(10))
 
     def _activate(self) -> None:
         values = self.values
@@ -162,6 +176,9 @@ class _DetectorPhases:
         if values["subscribe_raw"]:
             self._image_subscriptions.append(self.create_subscription(
                 Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
+        if values["pose.source"] == "own_ship":
+            self._image_subscriptions.append(self.create_subscription(
+                Imu, values["pose.imu_topic"], self._on_imu, reliable_qos(200)))
         topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
         topics += [values["raw_topic"]] if values["subscribe_raw"] else []
         config = self.detector.config
@@ -180,20 +197,23 @@ class _DetectorPhases:
         self.close()
 
     def _cleanup(self) -> None:
-        for publisher in (self.detections_pub, self.annotated_pub):
+        for publisher in (self.detections_pub, self.annotated_pub, self.pose_pub):
             if publisher is not None:
                 self.health.unwatch(publisher)
                 release_publisher(self, publisher)
-        self.detections_pub = self.annotated_pub = None
+        self.detections_pub = self.annotated_pub = self.pose_pub = None
         self.detector = None  # the ONNX session and its memory go with it
 
 
     def _apply_parameters(self, values) -> None:
         """A live change of the thresholds (the table's live rows), checked as at start, used from the next image."""
         config = detector_config(values)
+        settings = attitude_settings(values)
         self.values = values
         if self.detector is not None:  # a managed node not configured yet builds its detector from self.values
             self.detector.config = config
+        if self.poser is not None:
+            self.poser.settings = self.poser.estimator.settings = settings
 
     # ------------------------------------------------------------------------------------------------ input
     def _on_image(self, kind: str, message) -> None:
@@ -206,6 +226,14 @@ class _DetectorPhases:
         dropped = queue.put(kind, message, time.monotonic())
         if dropped:
             self.health.count("dropped_frames", dropped)
+
+    def _on_imu(self, message) -> None:
+        """The ship's attitude: into the poser, or counted as bad_attitude (NaN, not a unit quaternion)."""
+        reading = sample_attitude_of_imu(message)
+        if not reading.ok:
+            self.health.problem("bad_attitude", f"own-ship attitude dropped: {reading.reason}")
+            return
+        self.poser.add_attitude(stamp_to_sec(message.header.stamp), reading.attitude, reading.sigma_deg)
 
     # ------------------------------------------------------------------------------------------------ worker
     def _work(self, queue: ImageQueue) -> None:
@@ -228,12 +256,20 @@ class _DetectorPhases:
         message, received = item.message, item.received
         bgr = item.pixels()
         height, width = bgr.shape[:2]
-        in_image_pixels = self.detector.detect(bgr)
+        pose = self.poser.pose_of(stamp_to_sec(message.header.stamp), bgr)
+        if pose.problem_kind:
+            self.health.problem(pose.problem_kind, f"camera pose: {pose.estimate.problem or pose.problem_kind}")
+        self._report_pose(pose)
+        moving = self.values["pose.source"] != "fixed"
+        in_image_pixels = self.detector.detect(bgr, pose.view if moving else None)
         detections = in_image_pixels.in_calibrated_pixels((width, height), self.detector.reference_wh)
         header = message.header
         if not header.frame_id and self.values["frame_id"]:
             header.frame_id = self.values["frame_id"]
-        self.detections_pub.publish(detections_to_msg(detections, header, self.detector.config.target_class))
+        out = detections_to_msg(detections, header, self.detector.config.target_class)
+        out.camera_pose = camera_pose_msg(pose, header, self.camera, self.poser.mounting.camera_from_body)
+        self.pose_pub.publish(out.camera_pose)
+        self.detections_pub.publish(out)
         finished = time.monotonic()
         self._latencies.append((finished - started) * 1000.0)
         self._end_to_end.append((finished - received) * 1000.0)
@@ -245,12 +281,23 @@ class _DetectorPhases:
             image = Image()
             image.header = header
             for field, value in bgr_to_image_fields(
-                annotate(bgr, in_image_pixels, self.detector, float(self.values["annotated_scale"]))
+                annotate(bgr, in_image_pixels, self.detector, float(self.values["annotated_scale"]), pose.view)
             ).items():
                 setattr(image, field, value)
             self.annotated_pub.publish(image)
 
     # ------------------------------------------------------------------------------------------------ health
+    def _report_pose(self, pose) -> None:
+        """The attitude used and the horizon measured, on /diagnostics (NaN: none for this image)."""
+        estimate, edge = pose.estimate, pose.edge
+        self.health.set_value("pose_valid", float(estimate.valid))
+        for key, value in (("pose_heading_deg", estimate.heading_deg), ("pose_pitch_deg", estimate.pitch_deg),
+                           ("pose_roll_deg", estimate.roll_deg)):
+            self.health.set_value(key, float(value))
+        found = edge is not None and edge.found
+        self.health.set_value("horizon_found", float(found))
+        self.health.set_value("horizon_sigma_px", float(edge.sigma_px) if found else float("nan"))
+
     def _report(self) -> None:
         latencies = np.array(self._latencies)
         if latencies.size:

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from vessel_calib.attitude import AttitudeSettings
 from vessel_calib.camera_model import CameraModel
 from vessel_calib.params import camera_block, node_blocks, read_params_yaml
 from vessel_common.errors import ModelError, VesselError
@@ -32,6 +33,7 @@ from vessel_detect.detector import (
     horizon_band_top,
     load_model,
 )
+from vessel_detect.frame_pose import FramePoser
 from vessel_detect.masks import DEFAULT_EXCLUSION_POLYGONS
 from vessel_detect.model_store import ModelSpec
 from vessel_detect.size_prior import DEFAULT_SIZE_MODEL, DIMENSIONS, SizePrior
@@ -107,6 +109,37 @@ DETECTION_PARAMS: tuple[Param, ...] = (
               value_range=(0.0, 1.0)),
 )
 
+POSE_PARAMS: tuple[Param, ...] = (
+    Param("pose.source", "fixed", "The camera's attitude per image: fixed (the calibration's; the horizon is only "
+              "measured and published), horizon (a camera on a pole or pier that sways: pitch and roll from the "
+              "horizon measured in each image) or own_ship (a camera on a ship: the ship's attitude on imu_topic, "
+              "corrected by the horizon with use_horizon).", choices=("fixed", "horizon", "own_ship")),
+    Param("pose.imu_topic", "/own_ship/imu", "The ship's attitude (sensor_msgs/Imu orientation, REP-103/145: ENU, "
+              "body x forward, z up). A compass alone: the heading in the orientation and -1 in "
+              "orientation_covariance[0] and [4] (roll, pitch not measured)."),
+    Param("pose.max_age_s", 0.5, "An image whose stamp is further than this from the ship's attitude samples "
+              "around it gets no pose (counted as stale_pose): no positions are made from it.",
+              value_range=(0.001, 60.0)),
+    Param("pose.wait_s", 0.2, "How long an image waits for an attitude sample stamped after it (so the "
+              "attitude is interpolated, not held).", value_range=(0.0, 5.0)),
+    Param("pose.use_horizon", True, "Measure the sea's far edge in each image and, with source horizon or "
+              "own_ship, correct the attitude with it."),
+    Param("pose.sensor_sigma_deg", 0.1, "Noise of the ship's pitch and roll sensor, degrees.",
+              value_range=(1e-4, 10.0), live=True),
+    Param("pose.heading_sigma_deg", 0.5, "Noise of the ship's heading (compass), degrees.",
+              value_range=(1e-4, 30.0), live=True),
+    Param("pose.bias_drift_deg_per_s", 0.01, "How fast the attitude sensor's bias may wander, degrees per "
+              "second (the horizon tracks it).", value_range=(1e-6, 1.0)),
+    Param("pose.gate_sigmas", 5.0, "A horizon further than this many standard deviations from the "
+              "bias-corrected sensor is taken for a wrong edge and not used (counted).", value_range=(1.0, 100.0),
+          live=True),
+    Param("pose.topic", "/vessel/camera_pose", "vessel_msgs/CameraPose output: the attitude used for each image "
+              "and the horizon measured in it."),
+    Param("exclusion_polygons_frame", "reference", "What the exclusion masks are fixed to: reference (the world "
+              "seen at the calibration's attitude, e.g. a mooring post: they move with the camera's pose) or "
+              "image (the camera, e.g. the own ship's bow).", choices=("reference", "image")),
+)
+
 NODE_PARAMS: tuple[Param, ...] = (
     Param("compressed_topic", "/camera/image_raw/compressed", "CompressedImage input topic."),
     Param("raw_topic", "/camera/image_raw", "Image input topic."),
@@ -132,7 +165,7 @@ NODE_PARAMS: tuple[Param, ...] = (
 
 DETECTOR_PARAMETERS = ParameterTable(NODE_NAME, "Detector node (vessel_detect detector): images -> vessel boxes "
                                      "(vision_msgs-style Detection2DArray).",
-                                     MODEL_PARAMS + DETECTION_PARAMS + NODE_PARAMS)
+                                     MODEL_PARAMS + DETECTION_PARAMS + POSE_PARAMS + NODE_PARAMS)
 
 
 def default_values() -> dict[str, Any]:
@@ -209,6 +242,7 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
         mask_max_inside=float(values["mask_max_inside"]),
         target_class=str(values["target_class"]).strip(),
         class_agnostic_nms=bool(values["class_agnostic_nms"]),
+        masks_fixed_to=str(values["exclusion_polygons_frame"]),
     )
     config.validate()
     return config
@@ -266,6 +300,26 @@ def build_detector(values: Mapping[str, Any], camera_model=None, model: OnnxMode
         detector.appearance_combine = combine
         detector.appearance_nested_overlap = float(values.get("appearance_nested_overlap", DEFAULT_NESTED_OVERLAP))
     return detector
+
+
+def attitude_settings(values: Mapping[str, Any]) -> AttitudeSettings:
+    """The ``pose.*`` parameters as the attitude estimator's settings (validated)."""
+    settings = AttitudeSettings(
+        source=str(values["pose.source"]), use_horizon=bool(values["pose.use_horizon"]),
+        sensor_sigma_deg=float(values["pose.sensor_sigma_deg"]),
+        heading_sigma_deg=float(values["pose.heading_sigma_deg"]),
+        bias_drift_deg_per_s=float(values["pose.bias_drift_deg_per_s"]),
+        gate_sigmas=float(values["pose.gate_sigmas"]))
+    settings.validate()
+    return settings
+
+
+def frame_poser(values: Mapping[str, Any], camera_model) -> FramePoser:
+    """The poser of each image from the parameters and the calibration (which a moving camera needs)."""
+    if camera_model is None:
+        raise ModelError("pose.* needs the calibration: load it with --params-file config/aitas_camera.yaml")
+    return FramePoser(camera_model, attitude_settings(values), float(values["pose.max_age_s"]),
+                      float(values["pose.wait_s"]), bool(values["pose.use_horizon"]))
 
 
 def load_params_file(path: str | Path | None, node_name: str = NODE_NAME) -> tuple[dict[str, Any], Any]:

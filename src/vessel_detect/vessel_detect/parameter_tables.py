@@ -15,6 +15,8 @@ from vessel_common.parameter_table import Param, ParameterTable
 IMAGE_TOPIC = "/camera/image_raw/compressed"
 CAMERA_FIX_TOPIC = "/camera/fix"
 GPS_TRUTH_TOPIC = "/vessel/gps_truth"
+OWN_SHIP_FIX_TOPIC = "/own_ship/fix"
+OWN_SHIP_IMU_TOPIC = "/own_ship/imu"
 DETECTION_2D_ARRAY = "vessel_msgs/msg/Detection2DArray"
 
 IMAGE_QOS_CHOICES = ("sensor_data", "reliable")
@@ -45,9 +47,13 @@ CAMERA_PARAMETERS = ParameterTable("camera", CAMERA_TITLE, (
           "cameras), so the graph can run with use_sim_time."),
     Param("clock_rate_hz", 50.0, "How often /clock advances between frames (wall clock), at rate > 0.",
           value_range=(1.0, 1000.0), live=True),
-    Param("republish", True, "Republish the camera fix and GPS truth topics recorded in a bag."),
+    Param("republish", True, "Republish the camera fix, GPS truth and own-ship topics recorded in a bag."),
     Param("camera_fix_topic", CAMERA_FIX_TOPIC, "Camera position topic (NavSatFix, latched)."),
     Param("gps_truth_topic", GPS_TRUTH_TOPIC, "Vessel GPS ground truth topic (NavSatFix)."),
+    Param("own_ship_fix_topic", OWN_SHIP_FIX_TOPIC, "Position of the ship the camera is on (NavSatFix), republished "
+          "from a bag that has it."),
+    Param("own_ship_imu_topic", OWN_SHIP_IMU_TOPIC, "Attitude of the ship the camera is on (Imu, REP-103, frame "
+          "base_link), republished from a bag that has it."),
     Param("camera_fix_from_parameters", True, "When the source has no camera fix (video, folder, device, a bag "
           "without one), publish camera.camera_lat/camera_lon once, latched."),
     Param("camera.camera_lat", DEFAULT_CAMERA_PARAMETERS["camera_lat"], "Camera latitude, WGS-84 degrees.",

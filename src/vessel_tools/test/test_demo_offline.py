@@ -36,7 +36,7 @@ def test_the_offline_pass_takes_each_box_s_probability_of_being_the_vessel_of_in
     array = types["vessel_msgs/msg/Detection2DArray"](header=bag_messages.header(stamp, "camera"), detections=[
         _detection(types, 100.0, [("vessel_of_interest", 0.9)]),
         _detection(types, 300.0, [("vessel", 0.8), ("vessel_of_interest", 0.05)]),  # another boat, surely
-    ])
+    ], camera_pose=bag_messages.camera_pose_not_given(stamp))
     with bag_writer.BagWriter(tmp_path / "recording") as writer:
         writer.add_topic("/vessel/detections", "vessel_msgs/Detection2DArray")
         writer.write("/vessel/detections", array)

@@ -40,12 +40,18 @@ TOOLS: dict[str, Tool | Group] = {
                     "summary.json", "out/demo/summary.json --out docs/results.md"),
     "graph": Tool("vessel_bringup.graph", "start the node graph as processes, what vessel_graph.launch.py does",
                   "[--source BAG|VIDEO|DIR|device:N] [--rate R] [--nodes LIST] [--respawn] [--record BAG]"),
+    "view": Tool("vessel_tools.view.app", "a live web page of the water (plan, camera image, status) and the same "
+                 "data for Foxglove; starts the graph on --source first", "[--port 8080] [--source BAG --rate R] "
+                 "[--foxglove-port 8765] [--chart FILE.json]"),
     "eval": Tool("vessel_tools.track.evaluation",
                  "score predictions like the paper (m per 100 m, median, p80, coverage)",
                  "PREDICTIONS.csv --data DIR [--videos LIST] [--out DIR]"),
     "calibrate": Tool("vessel_tools.calibrate", "GPS-only camera calibration into a ROS parameter file "
                       "(without hand labels: the vessel is found among detected boats)",
                       "--data DIR --videos 7-12 --out FILE.yaml [--water-level CSV] [--from labels|detections]"),
+    "horizon": Tool("vessel_tools.calib.far_edge", "the sea's far edge measured in a dataset's frames: the reference "
+                    "line a moving camera's horizon is compared with (camera.far_edge_ideal_abc)",
+                    "--data DIR --videos LIST --calib FILE"),
     "bag": Group({
         "build": Tool("vessel_tools.detect.bag_build", "rosbag2 MCAP folders (one per video) from a dataset folder or "
                       "a video file", "--data DIR [--videos LIST] --out BAGDIR"),
@@ -70,6 +76,8 @@ TOOLS: dict[str, Tool | Group] = {
         "soak": Tool("vessel_tools.bench_soak", "the tracker and fuser cores without ROS on a looped stream for "
                      "minutes: CPU per frame, memory and every structure's size, minute by minute",
                      "[--minutes 10] [--fps 25] [--scene looped|harbour] [--recording DIR] [--out F]"),
+        "view": Tool("vessel_tools.view.bench", "the graph's frames/s with 20 WebSocket clients of ./vessel view "
+                     "(one never reading) against none, in one run", "[--clients 20] [--frames 36] [--rounds 2]"),
     }, default="graph"),
     "pipeline": Tool("vessel_tools.track.pipeline", "tracker, fuser and target choice without ROS over a detections "
                      "CSV (online or smoothed offline); where the defaults were chosen",
@@ -179,6 +187,7 @@ bench = _entry("bench")
 evaluate = _entry("eval")
 pipeline = _entry("pipeline")
 fit = _entry("fit")
+view = _entry("view")
 
 
 def console() -> None:

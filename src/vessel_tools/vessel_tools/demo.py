@@ -48,6 +48,7 @@ from vessel_tools.detect.bag_build import BuildOptions, build_from_dataset
 from vessel_tools.track.evaluation import FIX_COLUMNS
 from vessel_tools.track.offline_data import DetectionFrame
 from vessel_track.fuser_settings import HAND_BOX_FUSION, load_fuser_settings
+from vessel_track.pose_input import pose_refusal
 from vessel_track.tracker_config import load_tracker_config
 from vessel_track.tracker_node import detections_to_arrays, load_detection_inputs
 
@@ -157,6 +158,29 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_l
     fallback = repo_root() / "config" / "aitas_camera.yaml"
     log(f"no training labels found: using the shipped calibration {fallback}")
     return fallback
+
+
+def own_ship_params(dataset: Dataset, out: Path) -> Path | None:
+    """For a dataset with ``own_ship.csv`` (a camera on a ship): the detector poses each image from the ship's attitude
+    and the fuser places the camera at the ship's position.
+
+    The dataset's ``reference_attitude`` (the ship's attitude at which its calibration holds) goes in as the
+    calibration's ``camera.reference_attitude_deg``, listed before the calibration file so that a calibration
+    which records its own mounting wins. None for a fixed camera.
+    """
+    if dataset.own_ship() is None:
+        return None
+    block: dict = {"detector": {"ros__parameters": {"pose": {"source": "own_ship"}}},
+                   "fuser": {"ros__parameters": {"own_ship_fix_topic": "/own_ship/fix"}}}
+    reference = dataset.reference_attitude()
+    if reference is not None:
+        attitude = [float(reference.heading_deg), float(reference.pitch_deg or 0.0), float(reference.roll_deg or 0.0)]
+        block["/**"] = {"ros__parameters": {"camera": {"reference_attitude_deg": attitude}}}
+    path = out / "own_ship.yaml"
+    atomic_write_text(path, f"# the own ship of {dataset.path}, written by ./vessel demo\n"
+                      + yaml.safe_dump(block, sort_keys=False))
+    log(f"{dataset.path} has own_ship.csv: the detector poses each image from the ship's attitude ({path})")
+    return path
 
 
 def prepare_bags(dataset: Dataset, videos: list[int], bag_root: Path) -> dict[int, Path]:
@@ -408,6 +432,8 @@ def recorded_detection_frames(recording: Path, video: int, classes: frozenset[st
         if "/vessel/detections" not in reader.topics:
             return []
         for index, (_, array) in enumerate(reader.read_topic("/vessel/detections")):
+            if pose_refusal(array.camera_pose) is not None:
+                continue  # the tracker node skipped this image too: no pose, no positions
             boxes, scores = detections_to_arrays(array, classes, confidence_class)
             frames.append(DetectionFrame(video, index, ns_of_stamp(array.header.stamp) / 1e9, boxes, scores))
     return frames
@@ -469,7 +495,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         water_level.load()  # a missing or broken file fails here, before any work
     calibration = prepare_calibration(dataset, args.calib, out, water_level.file)
     fuser_overrides = tide_overrides(calibration, params_file)
-    params = [params_file, calibration]
+    pose_file = own_ship_params(dataset, out)
+    params = [params_file, *([pose_file] if pose_file else []), calibration]
     shared = default_data_dir()
     is_shared = shared is not None and Path(data).resolve() == shared.resolve()
     bag_root = args.bags or repo_root() / "bags" / ("" if is_shared else Path(data).resolve().name)

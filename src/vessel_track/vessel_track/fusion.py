@@ -222,22 +222,26 @@ def ideal_to_world_jacobian(camera, xp, yp) -> np.ndarray:
 
 
 def fuse_boxes(camera, model: BoxSizeDistanceModel, boxes_xyxy, config: FusionConfig | None = None,
-               stats: CueStatistics | None = None) -> FusedBoxes:
+               stats: CueStatistics | None = None, pose_sigma_px=None) -> FusedBoxes:
     """Fuse position and size cues of each box (N, 4 full-resolution px) into sea-plane positions.
 
     The box position is read where the calibration was fitted (``camera.box_reference_points``), shifted by
-    ``config.anchor_offset``.
+    ``config.anchor_offset``. ``pose_sigma_px`` (N, 2): the standard deviation the camera pose's uncertainty adds
+    to each box's ideal x and y (a camera that moves); it weighs on the position cue only, since a rotation of
+    the camera does not change a box's size, so the size cues gain weight when the pose is poorly known.
     """
     config = config or FusionConfig()
     stats = stats or CueStatistics()
     boxes = np.asarray(boxes_xyxy, dtype=float).reshape(-1, 4)
     ok_input, xp, cue_y = _cues(camera, model, boxes, config)
-    weights, var_y = _cue_weights(cue_y, config, stats)
+    pose_var = np.zeros((boxes.shape[0], 2)) if pose_sigma_px is None else np.square(
+        np.nan_to_num(np.asarray(pose_sigma_px, dtype=float).reshape(-1, 2)))
+    weights, var_y = _cue_weights(cue_y, config, stats, pose_var[:, 1])
     fused_y = np.where(ok_input, np.nansum(np.nan_to_num(cue_y) * weights, axis=1), np.nan)
     world, reason = _sea_plane(camera, xp, fused_y, ok_input, config)
     valid = reason == REASON_OK
     world[~valid] = np.nan
-    covariance = _world_covariance(camera, xp, fused_y, var_y, valid, stats)
+    covariance = _world_covariance(camera, xp, fused_y, var_y, valid, stats, pose_var[:, 0])
     xs, ys = camera.distort(xp, fused_y)
     screen = np.column_stack([np.asarray(xs, dtype=float).reshape(-1), np.asarray(ys, dtype=float).reshape(-1)])
     screen[~valid] = np.nan
@@ -271,8 +275,12 @@ def _cues(camera, model: BoxSizeDistanceModel, boxes: np.ndarray,
     return ok_input, xp, cue_y
 
 
-def _cue_weights(cue_y: np.ndarray, config: FusionConfig, stats: CueStatistics) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3) weights of each box's available cues by ``config.weights_mode``, and (N,) the fused y's variance."""
+def _cue_weights(cue_y: np.ndarray, config: FusionConfig, stats: CueStatistics,
+                 pose_var_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) weights of each box's available cues by ``config.weights_mode``, and (N,) the fused y's variance.
+
+    ``pose_var_y`` (N,): variance the camera's pose adds to the position cue (0 for a fixed camera).
+    """
     n = cue_y.shape[0]
     weights = np.zeros((n, 3))
     var_y = np.full(n, np.nan)
@@ -280,12 +288,16 @@ def _cue_weights(cue_y: np.ndarray, config: FusionConfig, stats: CueStatistics) 
         available = np.isfinite(cue_y[i])
         if not available[0]:
             continue  # without the box position there is no x either
+        covariance = stats.covariance
+        if pose_var_y[i] > 0:
+            covariance = covariance.copy()
+            covariance[0, 0] += pose_var_y[i]
         if config.weights_mode == "fitted":
-            weights[i], var_y[i] = gls_weights(stats.covariance, available)
+            weights[i], var_y[i] = gls_weights(covariance, available)
         elif config.weights_mode == "paper":
-            weights[i], var_y[i] = fixed_weights(PAPER_WEIGHTS, stats.covariance, available)
+            weights[i], var_y[i] = fixed_weights(PAPER_WEIGHTS, covariance, available)
         else:
-            weights[i], var_y[i] = fixed_weights((1.0, 0.0, 0.0), stats.covariance, available)
+            weights[i], var_y[i] = fixed_weights((1.0, 0.0, 0.0), covariance, available)
     return weights, var_y
 
 
@@ -311,12 +323,12 @@ def _sea_plane(camera, xp: np.ndarray, fused_y: np.ndarray, ok_input: np.ndarray
 
 
 def _world_covariance(camera, xp: np.ndarray, fused_y: np.ndarray, var_y: np.ndarray, valid: np.ndarray,
-                      stats: CueStatistics) -> np.ndarray:
+                      stats: CueStatistics, pose_var_x: np.ndarray) -> np.ndarray:
     """(N, 2, 2) covariance of the positions: the ideal pixels' pushed through the back-projection's Jacobian."""
     n = xp.shape[0]
     J = ideal_to_world_jacobian(camera, np.where(valid, xp, 0.0), np.where(valid, fused_y, 0.0))
     cov_px = np.zeros((n, 2, 2))
-    cov_px[:, 0, 0] = stats.x_std_px**2
+    cov_px[:, 0, 0] = stats.x_std_px**2 + pose_var_x
     cov_px[:, 1, 1] = np.where(valid, var_y, 1.0)
     covariance = J @ cov_px @ np.swapaxes(J, 1, 2)
     covariance = 0.5 * (covariance + np.swapaxes(covariance, 1, 2))

@@ -12,6 +12,7 @@ from dataclasses import fields
 
 from vessel_common.parameter_names import flatten
 from vessel_common.parameter_table import Param, ParameterTable, standby_row, state_rows
+from vessel_track.collision import AlertRule
 from vessel_track.error_model import KINDS as ERROR_MODEL_KINDS
 from vessel_track.fuser_settings import OFFLINE_TARGETS, FuserSettings
 from vessel_track.fusion import SCREEN_SOURCES, WEIGHT_MODES
@@ -255,6 +256,29 @@ def _fuser_settings_rows() -> tuple[Param, ...]:
                          lambda name: name.startswith(_FUSER_LIVE_BLOCKS))
 
 
+def _collision_rows() -> tuple[Param, ...]:
+    """The own ship and the collision alert (``vessel_track.collision``); the alert's defaults are ``AlertRule``'s."""
+    rule = AlertRule()
+    return (
+        Param("collision_alerts_topic", "/vessel/collision_alerts", "Tracks in collision alert (VesselTrackArray), "
+              "published only for frames with at least one."),
+        Param("own_ship_fix_topic", "", "sensor_msgs/NavSatFix of the camera's platform (e.g. /own_ship/fix), taken "
+              "as the camera's position (an antenna offset from camera_link is not corrected). '': the camera is "
+              "fixed at the calibration's camera_lat/lon, the own ship at rest there."),
+        Param("own_ship_max_age_s", 0.5, "A frame whose nearest own-ship fix is further than this from its stamp gets "
+              "no CPA (has_cpa false, counted as own_ship_stale), s.", value_range=(0.0, 1.0e6)),
+        Param("own_ship_velocity_window_s", 5.0, "The own ship's velocity is the least-squares slope of its fixes "
+              "over this long, s.", value_range=(0.01, 3600.0)),
+        Param("collision.cpa_alert_m", rule.cpa_alert_m, "A track is in alert when its CPA is under this (less "
+              "cpa_sigma_k of its deviations) with 0 <= TCPA <= tcpa_alert_s, m.", value_range=(0.0, 1.0e6),
+              live=True),
+        Param("collision.tcpa_alert_s", rule.tcpa_alert_s, "How far ahead a CPA may lie and still alert, s.",
+              value_range=(0.0, 1.0e6), live=True),
+        Param("collision.cpa_sigma_k", rule.cpa_sigma_k, "Conservative alert: the CPA less this many of its standard "
+              "deviations is compared with cpa_alert_m (0: the CPA itself).", value_range=(0.0, 10.0), live=True),
+    )
+
+
 FUSER_PARAMETERS = ParameterTable("fuser", "Fuser node (vessel_track fuser): screen tracks -> sea-plane tracks, "
                                   "the vessel of interest picked.", (
     Param("input_topic", "/vessel/tracks/screen", "Screen-space tracks from the tracker (VesselTrackArray)."),
@@ -262,6 +286,7 @@ FUSER_PARAMETERS = ParameterTable("fuser", "Fuser node (vessel_track fuser): scr
     Param("qos_depth", 10, "Queue depth of the reliable input and output.", value_range=(1, 1000)),
     *state_rows(),
     standby_row(),
+    *_collision_rows(),
     *_fuser_settings_rows(),
 ), notes=("distance_model and fusion.cue_* are written by `./vessel fit distance-model`, error_model by "
           "`./vessel fit error-model`.",))

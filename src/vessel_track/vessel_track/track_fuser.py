@@ -4,6 +4,12 @@
 message), fuses the boxes measured in it (``vessel_track.fusion.fuse_boxes``), runs a ``WorldKalmanFilter`` per
 track and the online vessel-of-interest selection (``vessel_track.selection``), and returns a ``WorldTrack`` per
 track: it is the core of the ``fuser`` node and of the pipeline's online mode.
+
+The world filters live in one fixed frame: metres east/north of the calibration's camera position
+(``camera_lat``/``camera_lon``). A camera on a moving platform measures each box relative to where it is at that
+moment; ``update(..., camera_offset=)`` gives that position in the fixed frame, and each measurement is shifted by
+it before it meets a filter, so the filters track the vessels over ground, not relative to a moving camera. The
+camera's heading needs no correction here: the tracker maps the boxes into the calibration's reference image.
 """
 from __future__ import annotations
 
@@ -50,6 +56,7 @@ class ScreenTrack:
     last_seen: float = math.nan
     center_cov: np.ndarray | None = None
     velocity_px: np.ndarray | None = None
+    pose_sigma_px: np.ndarray | None = None  # (2,) the camera pose's share of the box's ideal x, y std, px
 
     @property
     def box_xyxy(self) -> np.ndarray:
@@ -63,7 +70,14 @@ STATUS_TENTATIVE = 0
 
 @dataclass
 class WorldTrack:
-    """A track after fusion: the screen track plus its filtered sea-plane state (NaN when unknown)."""
+    """A track after fusion: the screen track plus its filtered sea-plane state (NaN when unknown).
+
+    ``position`` and ``velocity`` are in the fixed frame (east/north of the calibration's camera position, over
+    ground); ``camera_offset`` is the camera's position in that frame at this stamp (None: the calibration's, a
+    fixed camera), so ``relative_position`` is the vessel east/north of the camera now. ``distance_m`` and
+    ``bearing_deg`` are from the camera now. ``velocity_known``: the filter has taken a second measurement since it
+    started, so its velocity is measured rather than its zero prior.
+    """
 
     screen: ScreenTrack
     stamp: float
@@ -83,6 +97,14 @@ class WorldTrack:
     measured_covariance: np.ndarray | None = None
     measured_screen: np.ndarray | None = None     # the fused point on screen, px
     rejected_reason: str = ""                     # why this frame's box gave no position ("" if it did)
+    position_velocity_covariance: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+    camera_offset: np.ndarray | None = None
+    velocity_known: bool = False
+
+    @property
+    def relative_position(self) -> np.ndarray:
+        """The position east/north of the camera at this stamp (``position`` itself for a fixed camera)."""
+        return self.position if self.camera_offset is None else self.position - self.camera_offset
 
 
 class TrackFuser:
@@ -92,8 +114,9 @@ class TrackFuser:
     that one's filter, and a track whose filter restarts after ``motion.max_rejections`` outliers in a row has its
     selection history ended (``OnlineTargetSelector.identity_changed``).
 
-    ``update(stamp, tracks)`` takes every track of one image (``ScreenTrack``) and returns a ``WorldTrack``
-    for each. ``counts`` records bad input and rejections by kind (for the node's diagnostics).
+    ``update(stamp, tracks, camera_offset)`` takes every track of one image (``ScreenTrack``) and the camera's
+    position then (see the module docstring) and returns a ``WorldTrack`` for each. ``counts`` records bad input
+    and rejections by kind (for the node's diagnostics).
     """
 
     def __init__(self, camera, distance_model: BoxSizeDistanceModel | None = None,
@@ -119,6 +142,8 @@ class TrackFuser:
         self.filters: dict[str, WorldKalmanFilter] = {}
         self._ended_filters: dict[str, WorldKalmanFilter] = {}   # of ended tracks, while a join may continue them
         self._shapes: dict[str, deque] = {}   # recent (aspect, height) of each track's boxes (shape_jump, height_drop)
+        self._velocity_known: set[str] = set()  # filters (by track id) that took a second measurement since start
+        self._camera_offset: np.ndarray | None = None  # this frame's camera position in the fixed frame
         self.last_stamp: float | None = None
         self.counts: dict[str, int] = {}
 
@@ -130,6 +155,7 @@ class TrackFuser:
         self.filters.clear()
         self._ended_filters.clear()
         self._shapes.clear()
+        self._velocity_known.clear()
         self.selector.reset()
         self.last_stamp = None
 
@@ -150,7 +176,8 @@ class TrackFuser:
         """Carry on from ``snapshot()`` of a fuser with the same settings (a node restarted after a crash).
 
         ValueError (KeyError, TypeError) for a snapshot with other fields than this version's: the fuser is then
-        left as it was.
+        left as it was. Which filters have measured a velocity is not in the snapshot (it would change the state
+        file's fields): each restored track counts as not having one until its next accepted measurement.
         """
         def filters(by_id: dict) -> dict:
             return {str(track_id): set_fields(WorldKalmanFilter(self.motion_config), fields, "a world filter",
@@ -163,10 +190,17 @@ class TrackFuser:
         restored = (filters(snapshot["filters"]), filters(snapshot["ended_filters"]), shapes, selector,
                     None if snapshot["last_stamp"] is None else float(snapshot["last_stamp"]))
         self.filters, self._ended_filters, self._shapes, self.selector, self.last_stamp = restored
+        self._velocity_known = set()
 
-    def update(self, stamp: float, tracks: list[ScreenTrack]) -> list[WorldTrack]:
-        """Fuse one frame's tracks; raises DataError only for a non-finite stamp."""
+    def update(self, stamp: float, tracks: list[ScreenTrack], camera_offset=None) -> list[WorldTrack]:
+        """Fuse one frame's tracks; raises DataError only for a non-finite stamp or camera offset.
+
+        ``camera_offset``: the camera's position at ``stamp``, metres east/north of the calibration's camera
+        position (None: there, a fixed camera).
+        """
+        offset = None if camera_offset is None else _checked_offset(camera_offset)
         stamp = self._take_stamp(stamp)
+        self._camera_offset = offset
         out, good = self._refuse_invalid(stamp, tracks)
         world_tracks, changed_identity = self._world_tracks(stamp, good)
         present = {t.track_id for t in tracks}
@@ -181,6 +215,7 @@ class TrackFuser:
         max_gap = self.selector.config.join_max_gap_s
         self._ended_filters = {tid: kf for tid, kf in self._ended_filters.items()
                                if kf.stamp is not None and 0 <= stamp - kf.stamp <= max_gap}
+        self._velocity_known &= set(self.filters) | set(self._ended_filters)
         for wt in world_tracks:
             wt.score = self.selector.score(wt.screen.track_id)
             wt.is_target = target is not None and wt.screen.track_id == target and wt.screen.status != STATUS_LOST
@@ -220,7 +255,11 @@ class TrackFuser:
         fused = None
         if measured:
             boxes = np.array([t.box_xyxy for t in measured]).reshape(-1, 4)
-            fused = fuse_boxes(self.camera_at(stamp), self.distance_model, boxes, self.fusion_config, self.cue_stats)
+            pose_sigma = np.array([t.pose_sigma_px if t.pose_sigma_px is not None else (0.0, 0.0) for t in measured])
+            fused = fuse_boxes(self.camera_at(stamp), self.distance_model, boxes, self.fusion_config, self.cue_stats,
+                               pose_sigma)
+            if self._camera_offset is not None:
+                fused.world = fused.world + self._camera_offset  # camera-relative -> the filters' fixed frame
         fused_by_id = {t.track_id: i for i, t in enumerate(measured)}
         world_tracks: list[WorldTrack] = []
         changed_identity: list[str] = []
@@ -239,10 +278,12 @@ class TrackFuser:
                 result = self._measure(stamp, track, wt, kf, fused, fused_by_id[track.track_id])
                 if result is not None and result.restart_reason == "rejections":
                     changed_identity.append(track.track_id)
+                self._note_velocity(track.track_id, result, track.track_id)
             elif kf is not None and kf.initialised:
                 result = kf.predict(stamp)
             if result is not None:
                 self._fill_world(wt, result)
+                wt.velocity_known = track.track_id in self._velocity_known
             world_tracks.append(wt)
         return world_tracks, changed_identity
 
@@ -320,18 +361,54 @@ class TrackFuser:
             if not result.accepted and not result.restarted:
                 self._count("outlier_rejected")
             self.filters[new_id] = old
+            self._note_velocity(new_id, result, old_id)
             self._fill_world(wt, result)
+            wt.velocity_known = new_id in self._velocity_known
+
+    def _note_velocity(self, track_id: str, result: FilterOutput | None, previous_id: str) -> None:
+        """Whether ``track_id``'s filter has measured a velocity after this step (``previous_id``'s before it).
+
+        A (re)start leaves only the zero prior; an accepted measurement after it is the second, which measures it;
+        a rejected one or a prediction leaves it as it was.
+        """
+        known = previous_id in self._velocity_known
+        if result is not None and result.restarted:
+            known = False
+        elif result is not None and result.accepted:
+            known = True
+        if known:
+            self._velocity_known.add(track_id)
+        else:
+            self._velocity_known.discard(track_id)
 
     def _fill_world(self, wt: WorldTrack, result: FilterOutput) -> None:
         clip = self.fusion_config.clip_m
-        position = np.clip(result.position, -clip, clip)
+        offset = self._camera_offset
+        if offset is None:
+            position = np.clip(result.position, -clip, clip)
+            relative = position
+            camera_lat, camera_lon = self.camera.camera_lat, self.camera.camera_lon
+        else:  # clipped about the camera, where fusion.clip_m means it
+            relative = np.clip(result.position - offset, -clip, clip)
+            position = offset + relative
+            camera_lat, camera_lon = geodesy.local_to_gps(offset[0], offset[1], self.camera.camera_lat,
+                                                          self.camera.camera_lon)
         wt.has_world = True
         wt.position = position
+        wt.camera_offset = None if offset is None else offset.copy()
         wt.velocity = result.velocity
         wt.position_covariance = result.position_covariance
         wt.velocity_covariance = result.velocity_covariance
+        wt.position_velocity_covariance = result.covariance[:2, 2:].copy()
         lat, lon = geodesy.local_to_gps(position[0], position[1], self.camera.camera_lat, self.camera.camera_lon)
         wt.latitude, wt.longitude = float(lat), float(lon)
-        wt.distance_m = float(np.hypot(position[0], position[1]))
-        wt.bearing_deg = float(geodesy.bearing_deg(self.camera.camera_lat, self.camera.camera_lon, lat, lon))
+        wt.distance_m = float(np.hypot(relative[0], relative[1]))
+        wt.bearing_deg = float(geodesy.bearing_deg(camera_lat, camera_lon, lat, lon))
         wt.expected_error_m = float(self.error_model.expected_error_m(wt.distance_m))
+
+
+def _checked_offset(camera_offset) -> np.ndarray:
+    offset = np.asarray(camera_offset, dtype=float).reshape(-1)
+    if offset.shape != (2,) or not np.all(np.isfinite(offset)):
+        raise DataError(f"fuser: camera_offset must be 2 finite metres (east, north), got {camera_offset!r}")
+    return offset

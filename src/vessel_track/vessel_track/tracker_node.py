@@ -17,6 +17,7 @@ older stamp drops the message; a score outside [0, 1] drops the detection) is ``
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import fields
 
 import numpy as np
@@ -39,6 +40,7 @@ from vessel_track.message_checks import (
 )
 from vessel_track.node_params import main_with_checks
 from vessel_track.parameter_tables import EVERY_CLASS, TRACKER_PARAMETERS
+from vessel_track.pose_input import boxes_in_reference, pose_refusal, pose_sigma_px
 from vessel_track.tracker import MultiTargetTracker, TrackerCounters, TrackState
 from vessel_track.tracker_config import TrackerConfig, node_values
 
@@ -67,7 +69,8 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
     detector's vessel-of-interest class), an accepted detection's score is that hypothesis' score wherever it
     has one: every vessel is tracked, and each track's confidence is its probability of being the target.
     ``with_labels`` also returns each kept detection's class (its first accepted hypothesis, '' without one).
-    A detection with a score outside [0, 1] is left out, as the node refuses it (``message_checks``).
+    A detection with a score outside [0, 1] is left out, as the node refuses it (``message_checks``). Boxes come
+    back in the calibration's reference image (``pose_input``): the array's pose must have passed ``pose_refusal``.
     """
     boxes = []
     scores = []
@@ -93,7 +96,8 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
         scores.append(score)
         labels.append(next((r.hypothesis.class_id for r in det.results
                             if classes is None or r.hypothesis.class_id in classes), ""))
-    arrays = np.array(boxes, dtype=float).reshape(-1, 4), np.array(scores, dtype=float)
+    in_image = np.array(boxes, dtype=float).reshape(-1, 4)
+    arrays = boxes_in_reference(msg.camera_pose, in_image), np.array(scores, dtype=float)
     return (*arrays, labels) if with_labels else arrays
 
 
@@ -120,8 +124,11 @@ def accepted_classes(classes) -> frozenset[str] | None:
     return None if not classes or EVERY_CLASS in classes else frozenset(classes)
 
 
-def track_to_msg(state: TrackState, header) -> VesselTrack:
-    """A ``VesselTrack`` of one tracker state: screen fields filled, world fields NaN, not the target."""
+def track_to_msg(state: TrackState, header, pose_sigma: Sequence[float] = (0.0, 0.0)) -> VesselTrack:
+    """A ``VesselTrack`` of one tracker state: screen fields filled, world fields NaN, not the target.
+
+    ``pose_sigma``: what the camera pose's uncertainty adds to the box's ideal x, y std (``pose_input``).
+    """
     msg = VesselTrack()
     msg.header = header
     msg.id = state.track_id
@@ -141,6 +148,7 @@ def track_to_msg(state: TrackState, header) -> VesselTrack:
     msg.screen_velocity.x = float(state.velocity[0])
     msg.screen_velocity.y = float(state.velocity[1])
     msg.screen_covariance = [float(v) for v in np.asarray(state.center_cov, dtype=float).ravel()]
+    msg.pose_sigma_px = [float(v) for v in pose_sigma]
     if state.measured_center is not None:
         msg.detection_bbox.center.position.x = float(state.measured_center[0])
         msg.detection_bbox.center.position.y = float(state.measured_center[1])
@@ -208,6 +216,10 @@ class TrackerNode(Node):
             report(self.health, [refusal])  # nothing published: downstream never sees time go back a little
             return
         self.health.observe_input(stamp)
+        refusal = pose_refusal(msg.camera_pose)
+        if refusal is not None:
+            self.health.problem("no_pose", refusal)
+            return
         report(self.health, checked_detections(msg.detections)[1])  # detections_to_arrays leaves them out
         boxes, scores, labels = detections_to_arrays(msg, self.classes, self.confidence_class, with_labels=True)
         try:
@@ -217,7 +229,8 @@ class TrackerNode(Node):
             return
         out = VesselTrackArray()
         out.header = msg.header
-        out.tracks = [track_to_msg(s, msg.header) for s in states]
+        sigmas = pose_sigma_px(msg.camera_pose, np.array([s.center for s in states]).reshape(-1, 2))
+        out.tracks = [track_to_msg(s, msg.header, sigma) for s, sigma in zip(states, sigmas, strict=True)]
         publishing = self.standby.publishing()
         if publishing:
             self.publisher.publish(out)

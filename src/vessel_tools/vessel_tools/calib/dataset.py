@@ -1,7 +1,8 @@
 """Reader for a data folder laid out like ``../shared/aitas`` (AI Tracks at Sea development set).
 
 Layout: ``camera.json`` and ``frames.csv`` are required; ``screen_labels.csv``, ``target_gps_fixes.csv``,
-``gt_1hz.csv`` and ``videos.csv`` are optional (missing ones give empty results). Every time is returned as UNIX
+``gt_1hz.csv`` and ``videos.csv`` are optional (missing ones give empty results), and so is ``own_ship.csv``, the
+position and attitude of the ship a camera is on (missing: a camera on land, ``None``). Every time is returned as UNIX
 epoch seconds: ``frames.csv`` holds ISO UTC, the other files seconds since 00:00 UTC of the recording day,
 which is taken from ``frames.csv`` (per video).
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from vessel_calib.camera_model import PAPER_BOX_ANCHOR, CameraModel, box_points
 from vessel_calib.gps_track import GpsTrack, parse_time, seconds_of_day_to_epoch
+from vessel_calib.own_ship import OwnShipSample, ShipAttitude, read_own_ship_csv
 from vessel_common.errors import CalibrationError, DataError
 from vessel_common.paths import parse_videos
 
@@ -172,6 +174,7 @@ class Dataset:
             raise DataError(f"{self.path / 'frames.csv'} is missing: a data folder needs frames.csv")
         self._frames: list[FrameRecord] | None = None
         self._video_ref: dict[int, float] | None = None
+        self._own_ship: list[OwnShipSample] | None = None
 
     def __repr__(self) -> str:
         return f"Dataset({str(self.path)!r})"
@@ -211,6 +214,32 @@ class Dataset:
                                camera_lat=self.camera_lat, camera_lon=self.camera_lon)
         except (KeyError, CalibrationError) as exc:
             raise DataError(f"{self.path / 'camera.json'}: calibration '{which}' unusable: {exc}") from None
+
+    def reference_attitude(self) -> ShipAttitude | None:
+        """The ship attitude at which the calibration holds (camera.json ``reference_attitude``); None: not given.
+
+        A camera on a ship sees the sea through its calibration only at this attitude; pitch and roll null or
+        absent: only the heading is known.
+        """
+        value = self.camera.get("reference_attitude")
+        if value is None:
+            return None
+        where = f"{self.path / 'camera.json'}: 'reference_attitude'"
+        if not isinstance(value, dict):
+            raise DataError(f"{where} must be an object {{heading_deg, pitch_deg, roll_deg}}, got {value!r}")
+        angles = {}
+        for key in ("heading_deg", "pitch_deg", "roll_deg"):
+            angle = value.get(key)
+            if angle is None and key != "heading_deg":
+                angles[key] = None
+            elif isinstance(angle, int | float) and not isinstance(angle, bool) and math.isfinite(angle):
+                angles[key] = float(angle)
+            else:
+                raise DataError(f"{where}: '{key}' must be a number of degrees, got {angle!r}")
+        try:
+            return ShipAttitude(**angles)
+        except DataError as error:
+            raise DataError(f"{where}: {error}") from None
 
     # ----------------------------------------------------------------- frames
     def frames(self, videos=None) -> list[FrameRecord]:
@@ -358,6 +387,15 @@ class Dataset:
             lats.append(lat)
             lons.append(lon)
         return GpsTrack(stamps, lats, lons, skipped_rows=skipped)
+
+    def own_ship(self) -> list[OwnShipSample] | None:
+        """The own ship's samples (``own_ship.csv``, epoch stamps, cached); None when the folder has none."""
+        path = self.path / "own_ship.csv"
+        if not path.is_file():
+            return None
+        if self._own_ship is None:
+            self._own_ship = read_own_ship_csv(path, lambda utc_s: self._sod_to_epoch(utc_s, None))
+        return self._own_ship
 
     def gt_1hz(self, videos=None) -> list[GtRecord]:
         """Ground truth at every whole second inside each video (``gt_1hz.csv``); [] if absent."""

@@ -3,7 +3,9 @@
 Dataset mode (`--data DIR`, a folder laid out like ../shared/aitas) writes one bag per video, `BAGDIR/video_<N>`,
 with the frame JPEGs exactly as they are on `/camera/image_raw/compressed` (stamp = the frame's UTC), the camera
 position on `/camera/fix` (at the first frame, then at `--camera-fix-rate`) and every GPS fix of the vessel within
-the video's time window (plus a margin) on `/vessel/gps_truth`. Video mode (`--video FILE`) re-encodes the frames
+the video's time window (plus a margin) on `/vessel/gps_truth`; when the folder has an `own_ship.csv` (a camera on
+a ship), its samples within the window (plus a margin) on `/own_ship/fix` (NavSatFix) and `/own_ship/imu` (Imu,
+REP-103, frame `base_link`). Video mode (`--video FILE`) re-encodes the frames
 of any video OpenCV reads as JPEG, stamped from `--start-utc` plus the video's own frame times, with the GPS of a
 CSV or GPX track. Message log times equal header stamps. A bag is written beside its final place and renamed
 when complete, so an interrupted build leaves no half bag.
@@ -19,7 +21,7 @@ import argparse
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +33,8 @@ from vessel_detect import bag_messages, bag_reader, bag_salvage, bag_topics, bag
 from vessel_detect.file_sources import VideoSource, parse_utc
 from vessel_detect.image_source import jpeg_problem
 from vessel_tools.calib.dataset import Dataset
+from vessel_tools.detect import own_ship_bag
+from vessel_tools.detect.bag_merge import MessageMerger, TimedMessage
 
 _NS_PER_S = 1_000_000_000
 MAX_LISTED_PROBLEMS = 10
@@ -43,6 +47,10 @@ class BuildOptions:
     image_topic: str = bag_topics.DEFAULT_IMAGE_TOPIC
     camera_fix_topic: str = bag_topics.DEFAULT_CAMERA_FIX_TOPIC
     gps_truth_topic: str = bag_topics.DEFAULT_GPS_TRUTH_TOPIC
+    own_ship_fix_topic: str = bag_topics.DEFAULT_OWN_SHIP_FIX_TOPIC
+    own_ship_imu_topic: str = bag_topics.DEFAULT_OWN_SHIP_IMU_TOPIC
+    own_ship_frame_id: str = own_ship_bag.OWN_SHIP_FRAME_ID
+    own_ship_margin_s: float = 5.0
     camera_frame_id: str = "camera"
     gps_frame_id: str = "vessel_gps"
     camera_fix_rate_hz: float = 1.0  # 0: only one fix, at the first frame
@@ -64,6 +72,9 @@ class BuildResult:
     camera_fixes: int = 0
     gps_fixes: int = 0
     gps_skipped_rows: int = 0
+    own_ship_fixes: int = 0
+    own_ship_attitudes: int = 0
+    own_ship_gaps: int = 0
     size_bytes: int = 0
     seconds: float = 0.0
     start_s: float = math.nan
@@ -74,9 +85,13 @@ class BuildResult:
         """One line for the progress display."""
         skipped = f", {self.skipped_frames} frames skipped" if self.skipped_frames else ""
         gps_bad = f", {self.gps_skipped_rows} GPS rows skipped" if self.gps_skipped_rows else ""
+        own = (f", {self.own_ship_fixes} own-ship fixes and {self.own_ship_attitudes} attitudes"
+               + (f" ({self.own_ship_gaps} gaps over {own_ship_bag.MAX_GAP_S:g} s)" if self.own_ship_gaps else "")
+               if self.own_ship_fixes else "")
         return (
             f"{self.name}: {self.frames} frames{skipped}, {self.camera_fixes} camera fixes, {self.gps_fixes} GPS "
-            f"fixes{gps_bad}, {self.duration_s:.1f} s of data, {self.size_bytes / 1e6:.1f} MB in {self.seconds:.2f} s"
+            f"fixes{gps_bad}{own}, {self.duration_s:.1f} s of data, {self.size_bytes / 1e6:.1f} MB in "
+            f"{self.seconds:.2f} s"
         )
 
     @property
@@ -99,69 +114,6 @@ def folder_size(path: Path) -> int:
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
 
 
-def camera_fix_stamps(first_ns: int, rate_hz: float) -> Iterator[int]:
-    """Stamps of the camera's fix: the first frame, then every 1/rate s (forever; the writer stops asking)."""
-    yield first_ns
-    if rate_hz <= 0:
-        return
-    period_ns = round(_NS_PER_S / rate_hz)
-    k = 1
-    while True:
-        yield first_ns + k * period_ns
-        k += 1
-
-
-class _MessageMerger:
-    """Writes one bag's frames, camera fixes and GPS fixes in time order, counting them in ``result``."""
-
-    def __init__(self, writer, result: BuildResult, options: BuildOptions, camera_latlon: tuple[float, float],
-                 gps: tuple[list[int], list[float], list[float]] | None, margin_ns: int) -> None:
-        self.writer, self.result, self.options = writer, result, options
-        self.camera_lat, self.camera_lon = camera_latlon
-        self.gps_ns, self.gps_lat, self.gps_lon = gps if gps is not None else ([], [], [])
-        self.margin_ns = margin_ns
-        self.gps_index = 0
-        self.fix_stamps: Iterator[int] | None = None
-        self.next_fix_ns: int | None = None
-
-    def gps_until(self, stamp_ns: int) -> None:
-        """Every GPS fix not yet written stamped at or before ``stamp_ns``."""
-        while self.gps_index < len(self.gps_ns) and self.gps_ns[self.gps_index] <= stamp_ns:
-            i = self.gps_index
-            fix = bag_messages.nav_sat_fix(
-                self.gps_ns[i], self.gps_lat[i], self.gps_lon[i], frame_id=self.options.gps_frame_id
-            )
-            self.writer.write(self.options.gps_truth_topic, fix)
-            self.result.gps_fixes += 1
-            self.gps_index += 1
-
-    def frame(self, stamp_ns: int, data: bytes) -> None:
-        """One readable frame, after the camera and GPS fixes due by its stamp."""
-        options = self.options
-        if self.fix_stamps is None:
-            self.fix_stamps = camera_fix_stamps(stamp_ns, options.camera_fix_rate_hz)
-            self.next_fix_ns = next(self.fix_stamps)
-            self.result.start_s = stamp_ns / 1e9
-            while self.gps_index < len(self.gps_ns) and self.gps_ns[self.gps_index] < stamp_ns - self.margin_ns:
-                self.gps_index += 1  # before the video's window
-        while self.next_fix_ns is not None and self.next_fix_ns <= stamp_ns:
-            self.gps_until(self.next_fix_ns)
-            fix = bag_messages.nav_sat_fix(self.next_fix_ns, self.camera_lat, self.camera_lon, options.camera_alt_m,
-                                           frame_id=options.camera_frame_id, sigma_m=options.camera_sigma_m)
-            self.writer.write(options.camera_fix_topic, fix)
-            self.result.camera_fixes += 1
-            self.next_fix_ns = next(self.fix_stamps, None)
-        self.gps_until(stamp_ns)
-        self.writer.write(options.image_topic,
-                          bag_messages.compressed_image(stamp_ns, data, options.camera_frame_id, "jpeg"))
-        self.result.frames += 1
-        self.result.end_s = stamp_ns / 1e9
-
-    def finish(self) -> None:
-        """The GPS fixes up to the margin after the last frame."""
-        self.gps_until(bag_messages.sec_to_ns(self.result.end_s) + self.margin_ns)
-
-
 def _check_time_order(previous: FrameInput | None, frame: FrameInput) -> None:
     if previous is not None and frame.stamp_ns <= previous.stamp_ns:
         raise DataError(
@@ -182,11 +134,13 @@ def write_bag(
     name: str,
     custom_data: dict[str, str] | None = None,
     on_frame: Callable[[int], None] | None = None,
+    extra: Sequence[TimedMessage] = (),
 ) -> BuildResult:
     """Write one bag: frames (in increasing stamp order) merged in time with the camera and GPS fixes.
 
     Camera fixes are written at the first frame and then at the configured rate until the last frame. Of the
-    GPS fixes (stamps ns, lats, lons; sorted), those within the margin around the first and last frame written.
+    GPS fixes (stamps ns, lats, lons; sorted), those within the margin around the first and last frame written;
+    every ``extra`` message (sorted by stamp; their topics reliable) is written in time order with the rest.
     `DataError` for frames out of time order.
     """
     started = time.monotonic()
@@ -200,7 +154,9 @@ def write_bag(
         writer.add_topic(options.camera_fix_topic, bag_topics.NAV_SAT_FIX, "latched")
         if gps is not None:
             writer.add_topic(options.gps_truth_topic, bag_topics.NAV_SAT_FIX, "reliable")
-        merger = _MessageMerger(writer, result, options, (camera_lat, camera_lon), gps, margin_ns)
+        for item in extra:
+            writer.add_topic(item.topic, item.msgtype, "reliable")
+        merger = MessageMerger(writer, result, options, (camera_lat, camera_lon), gps, margin_ns, extra)
         previous: FrameInput | None = None
         for frame in frames:
             _check_time_order(previous, frame)
@@ -270,6 +226,7 @@ def build_from_dataset(
     gps = track_fixes(track) if (dataset.path / "target_gps_fixes.csv").is_file() else None
     if report is not None and track.skipped_rows:
         report(f"  warning: {track.skipped_rows} rows of target_gps_fixes.csv have no position (NaN/empty); skipped")
+    own_ship = dataset.own_ship()
     results = []
     for video in wanted:
         records = dataset.frames([video])
@@ -277,6 +234,9 @@ def build_from_dataset(
             FrameInput(bag_messages.sec_to_ns(r.stamp), f"video {video} frame {r.frame}", _load_jpeg(r.path))
             for r in records
         ]
+        window = own_ship_bag.own_ship_window(own_ship or [], records[0].stamp, records[-1].stamp, options)
+        if own_ship is not None and report is not None and not window.fixes:
+            report(f"  warning: own_ship.csv has no sample within video {video}'s window; no own-ship topics")
         result = write_bag(
             out_dir / f"video_{video}",
             frames,
@@ -290,7 +250,10 @@ def build_from_dataset(
                 "vessel_detect.video": str(video),
                 "vessel_detect.builder": "vessel_detect bag_build",
             },
+            extra=window.messages,
         )
+        result.own_ship_fixes, result.own_ship_attitudes, result.own_ship_gaps = (
+            window.fixes, window.attitudes, window.gaps)
         results.append(result)
         if report is not None:
             for problem in result.problems[:MAX_LISTED_PROBLEMS]:
@@ -443,6 +406,7 @@ def _parser() -> argparse.ArgumentParser:
     topics.add_argument("--camera-sigma-m", type=float, help="1-sigma camera position error, m (default unknown)")
     topics.add_argument("--camera-alt", type=float, default=math.nan, help="camera altitude, m (default unknown)")
     topics.add_argument("--gps-margin-s", type=float, default=5.0, help="GPS fixes kept around the video (5 s)")
+    own_ship_bag.add_arguments(topics)
     return parser
 
 
@@ -471,6 +435,7 @@ def _options(args: argparse.Namespace) -> BuildOptions:
         gps_margin_s=args.gps_margin_s,
         jpeg_quality=args.jpeg_quality,
         overwrite=args.overwrite,
+        **own_ship_bag.options_of(args),
     )
 
 

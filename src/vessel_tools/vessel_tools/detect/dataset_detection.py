@@ -7,6 +7,7 @@ detections written as the ``detect run`` CSV.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import sys
 import time
@@ -57,15 +58,79 @@ def read_frame(path: Path) -> np.ndarray | None:
     return image if image is not None and image.size else None
 
 
-def detect_frames(detector: VesselDetector, frames: list, progress: bool = True) -> Iterator[tuple[object, Detections]]:
-    """Run the detector over dataset frames; unreadable frames are reported once each and skipped."""
+class DatasetPoser:
+    """Each frame's pose for a dataset with ``own_ship.csv`` (a camera on a ship), as the detector node finds it.
+
+    The ship's samples go into a ``FramePoser`` in time order up to just past each frame, as they would arrive
+    live; ``detect`` then detects in the frame and returns the boxes in the calibration's reference image, where
+    the tracker and the fuser read them. A frame that gets no pose comes back as None (no positions from it).
+    """
+
+    LOOK_AHEAD_S = 1.0
+
+    def __init__(self, samples, camera, values):
+        from vessel_detect.detector_params import frame_poser
+
+        values = dict(values, **{"pose.source": "own_ship", "pose.wait_s": 0.0})
+        self.poser = frame_poser(values, camera)
+        self.camera = camera
+        self.samples = [s for s in samples if s.attitude is not None]
+        self.next_index = 0
+        self.skipped = 0
+
+    def detect(self, detector: VesselDetector, stamp: float, image: np.ndarray) -> Detections | None:
+        """The frame's detections in the reference image, or None when it has no pose."""
+        if self.next_index and self.samples[self.next_index - 1].stamp > stamp + self.LOOK_AHEAD_S:
+            self.next_index = 0  # frames went back in time (another video): feed the ship's samples again
+        while self.next_index < len(self.samples) and self.samples[self.next_index].stamp <= stamp + self.LOOK_AHEAD_S:
+            sample = self.samples[self.next_index]
+            self.poser.add_attitude(sample.stamp, sample.attitude)
+            self.next_index += 1
+        pose = self.poser.pose_of(stamp, image)
+        if not pose.estimate.valid:
+            self.skipped += 1
+            return None
+        detections = detector.detect(image, pose.view)
+        height, width = image.shape[:2]
+        detections = detections.in_calibrated_pixels((width, height), detector.reference_wh)
+        boxes = pose.view.boxes_in_reference(detections.boxes_xyxy, detector.reference_wh, detector.reference_wh)
+        return dataclasses.replace(detections, boxes_xyxy=boxes)
+
+
+def dataset_poser(dataset, camera, values) -> DatasetPoser | None:
+    """The poser of a dataset with ``own_ship.csv`` (its ``reference_attitude`` unless the calibration has one)."""
+    samples = dataset.own_ship()
+    if samples is None:
+        return None
+    if camera is None:
+        raise DataError(f"{dataset.path} has own_ship.csv: pass the calibration (--calib FILE) to pose its frames")
+    if camera.reference_attitude_deg is None and dataset.reference_attitude() is not None:
+        reference = dataset.reference_attitude()
+        params = dict(camera.to_params(), reference_attitude_deg=[
+            reference.heading_deg, reference.pitch_deg or 0.0, reference.roll_deg or 0.0])
+        camera = type(camera).from_params(params)
+    return DatasetPoser(samples, camera, values)
+
+
+def detect_frames(detector: VesselDetector, frames: list, progress: bool = True,
+                  poser: DatasetPoser | None = None) -> Iterator[tuple[object, Detections]]:
+    """Run the detector over dataset frames; unreadable frames are reported once each and skipped.
+
+    With ``poser`` (a camera on a ship) boxes come back in the calibration's reference image and frames without
+    a pose are skipped.
+    """
     started = time.monotonic()
     for index, record in enumerate(frames, start=1):
         image = read_frame(record.path)
         if image is None:
             print(f"warning: cannot read frame {record.path}; skipped", file=sys.stderr)
             continue
-        yield record, detector.detect(image)
+        if poser is None:
+            yield record, detector.detect(image)
+        else:
+            detections = poser.detect(detector, record.stamp, image)
+            if detections is not None:
+                yield record, detections
         if progress and (index % 20 == 0 or index == len(frames)):
             rate = index / max(time.monotonic() - started, 1e-9)
             print(f"\r  {index}/{len(frames)} frames, {rate:.1f} frames/s", end="", file=sys.stderr, flush=True)

@@ -35,6 +35,7 @@ from vessel_detect.detector import VesselDetector
 from vessel_detect.detector_params import build_detector, load_params_file
 from vessel_tools.detect.dataset_detection import (
     camera_for,
+    dataset_poser,
     detect_frames,
     detections_csv_text,
     open_dataset,
@@ -61,12 +62,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     values, params_camera = load_params_file(args.params)
     if args.no_cue:
         values["appearance_model"] = ""
-    detector = build_detector(values, camera_for(dataset, params_camera, args.calib))
+    camera = camera_for(dataset, params_camera, args.calib)
+    detector = build_detector(values, camera)
     frames = dataset.frames(parse_video_spec(args.videos))
     if not frames:
         raise DataError(f"no frames for videos {args.videos or 'all'} in {dataset.path / 'frames.csv'}")
+    poser = dataset_poser(dataset, camera, values)
     print(f"detecting in {len(frames)} frames of {dataset.path} ({_describe(detector)})", file=sys.stderr)
-    rows = [(r.video, r.frame, d) for r, d in detect_frames(detector, frames, not args.quiet)]
+    rows = [(r.video, r.frame, d) for r, d in detect_frames(detector, frames, not args.quiet, poser)]
+    if poser is not None:
+        print(f"own_ship.csv: boxes written in the calibration's reference image; {poser.skipped} frame(s) without "
+              "a pose skipped", file=sys.stderr)
     _atomic_write(out, detections_csv_text(rows))
     total = sum(len(d) for _, _, d in rows)
     print(f"wrote {out}: {total} detections in {len(rows)} frames", file=sys.stderr)
