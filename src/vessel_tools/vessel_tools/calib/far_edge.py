@@ -34,14 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from vessel_calib.camera_model import CameraModel
+from vessel_calib.camera_pose import CameraMounting
 from vessel_calib.params import load_camera_params, load_camera_yaml
 from vessel_common.command_line import command_line_tool
-from vessel_common.errors import CalibrationError, DataError
+from vessel_common.errors import DataError
 from vessel_common.paths import parse_videos
 from vessel_detect.horizon import FarEdge, FarEdgeFinder, FarEdgeSettings, line_of, normalised_line
 from vessel_tools.calib.dataset import Dataset, FrameRecord
-
-ENU_FROM_NED = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])
 
 
 @dataclass(frozen=True)
@@ -150,69 +149,28 @@ def report_lines(results: Sequence[Measured], cx: float) -> None:
 
 
 # ----------------------------------------------------------------- the rotation of a moving copy
-# The formulas of ../shared/tools/make_motion_set.py (pinhole, r_nb, Q_of), so the prediction is the copy's own.
-def _rz(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def _ry(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def _rx(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def r_nb(heading_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
-    """NED from body (x forward, y starboard, z down): Rz(heading) Ry(pitch) Rx(roll)."""
-    return _rz(math.radians(heading_deg)) @ _ry(math.radians(pitch_deg)) @ _rx(math.radians(roll_deg))
-
-
-def pinhole(H: np.ndarray, cx: float, cy: float) -> tuple[np.ndarray, np.ndarray]:
-    """K and R (camera from ENU) of a sea-plane homography H ~ K [r1 r2 t], the camera above the water."""
-    h1, h2 = H[:, 0], H[:, 1]
-    a = np.array([h1[0] - cx * h1[2], h1[1] - cy * h1[2]])
-    b = np.array([h2[0] - cx * h2[2], h2[1] - cy * h2[2]])
-    A = np.array([a @ b, a @ a - b @ b])
-    B = np.array([-h1[2] * h2[2], h2[2] ** 2 - h1[2] ** 2])
-    f = math.sqrt(1.0 / float(A @ B / (A @ A)))
-    K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
-    M = np.linalg.inv(K) @ H
-    for sign in (1.0, -1.0):
-        m = sign * M
-        s = (np.linalg.norm(m[:, 0]) + np.linalg.norm(m[:, 1])) / 2
-        r1, r2, t = m[:, 0] / s, m[:, 1] / s, m[:, 2] / s
-        U, _, Vt = np.linalg.svd(np.column_stack([r1, r2, np.cross(r1, r2)]))
-        R = U @ Vt
-        if (-R.T @ t)[2] > 0:
-            return K, R
-    raise CalibrationError("no camera above the water fits the calibration's H")
-
-
 class Motion:
-    """A moving copy's rotation Q(t) of the camera from its reference attitude (``make_motion_set.py``'s Q_of)."""
+    """A moving copy's attitude at each instant, and the reference line as the rotated camera sees it.
+
+    The camera's mounting is ``vessel_calib.camera_pose.CameraMounting`` from the calibration at the copy's
+    reference attitude, the same pinhole ``make_motion_set.py`` warps with.
+    """
 
     def __init__(self, folder: Path, camera: CameraModel, source: str):
-        self.K, R_c_enu = pinhole(np.asarray(camera.H, float), *camera.center)
         profile = _read_json(folder / "motion.json")
-        focal = profile.get("focal_px")
-        if isinstance(focal, int | float) and abs(focal - self.K[0, 0]) > 1e-3 * focal:
-            raise DataError(f"{folder} was made with another calibration (focal {focal:.1f} px, --calib gives "
-                            f"{self.K[0, 0]:.1f}): pass the calibration it was made with")
         reference = _read_json(folder / "camera.json").get("reference_attitude") or {}
         self.ref_heading = float(reference.get("heading_deg", profile.get("ref_heading_deg", 76.0)))
-        self.R_nb0 = r_nb(self.ref_heading, 0.0, 0.0)
-        self.R_c_b = R_c_enu @ ENU_FROM_NED @ self.R_nb0
+        self.mounting = CameraMounting.from_camera(camera, (self.ref_heading, 0.0, 0.0))
+        focal = profile.get("focal_px")
+        if isinstance(focal, int | float) and abs(focal - self.mounting.K[0, 0]) > 1e-3 * focal:
+            raise DataError(f"{folder} was made with another calibration (focal {focal:.1f} px, --calib gives "
+                            f"{self.mounting.K[0, 0]:.1f}): pass the calibration it was made with")
         self.attitude = _profile_attitude(profile, self.ref_heading) if source == "exact" else \
             _csv_attitude(folder / "own_ship.csv")
 
     def line(self, reference_abc, seconds_of_day: float) -> tuple[float, float, float]:
         """The reference line as the rotated camera sees it at ``seconds_of_day``."""
-        Q = self.R_c_b @ r_nb(*self.attitude(seconds_of_day)).T @ self.R_nb0 @ self.R_c_b.T
-        moved = np.linalg.inv(self.K @ Q @ np.linalg.inv(self.K)).T @ np.asarray(reference_abc, float)
+        moved = self.mounting.line_in_image(reference_abc, *self.attitude(seconds_of_day))
         return normalised_line(moved)
 
 
