@@ -103,8 +103,8 @@ def _tracker_config_rows() -> tuple[Param, ...]:
 
 TRACKER_PARAMETERS = ParameterTable("tracker", "Tracker node (vessel_track tracker): detections -> screen-space "
                                     "tracks, one per vessel.", (
-    Param("input_topic", "/vessel/detections", "Detections of each image (vessel_msgs/Detection2DArray)."),
-    Param("output_topic", "/vessel/tracks/screen", "Screen-space tracks of each image (vessel_msgs/VesselTrackArray)."),
+    Param("input_topic", "vessel/detections", "Detections of each image (vessel_msgs/Detection2DArray)."),
+    Param("output_topic", "vessel/tracks/screen", "Screen-space tracks of each image (vessel_msgs/VesselTrackArray)."),
     Param("qos_depth", 10, "Queue depth of the reliable input and output.", value_range=(1, 1000)),
     *state_rows(),
     standby_row(),
@@ -120,9 +120,9 @@ COVARIANCE_MODES = ("sum", "filter", "error_model", "max")
 
 GPS_PUBLISHER_PARAMETERS = ParameterTable("gps_publisher", "GPS publisher node (vessel_track gps_publisher): the "
                                           "vessel of interest as sensor_msgs/NavSatFix.", (
-    Param("input_topic", "/vessel/tracks", "World tracks from the fuser (VesselTrackArray)."),
-    Param("fix_topic", "/vessel/fix", "NavSatFix of the vessel of interest."),
-    Param("fixes_topic", "/vessel/fixes", "Every vessel with a position (VesselTrackArray); empty string: off."),
+    Param("input_topic", "vessel/tracks", "World tracks from the fuser (VesselTrackArray)."),
+    Param("fix_topic", "vessel/fix", "NavSatFix of the vessel of interest."),
+    Param("fixes_topic", "vessel/fixes", "Every vessel with a position (VesselTrackArray); empty string: off."),
     Param("frame_id", "vessel_of_interest", "frame_id of the NavSatFix (the tracked vessel).", live=True),
     Param("max_coast_s", 2.0, "A target not seen by the detector for longer than this is published as NO_FIX, s. "
           "The challenge frames are 4 s apart, so no coasting fix there; live, a coasting target is reported for up "
@@ -260,7 +260,7 @@ def _collision_rows() -> tuple[Param, ...]:
     """The own ship and the collision alert (``vessel_track.collision``); the alert's defaults are ``AlertRule``'s."""
     rule = AlertRule()
     return (
-        Param("collision_alerts_topic", "/vessel/collision_alerts", "Tracks in collision alert (VesselTrackArray), "
+        Param("collision_alerts_topic", "vessel/collision_alerts", "Tracks in collision alert (VesselTrackArray), "
               "published only for frames with at least one."),
         Param("own_ship_fix_topic", "", "sensor_msgs/NavSatFix of the camera's platform (e.g. /own_ship/fix), taken "
               "as the camera's position (an antenna offset from camera_link is not corrected). '': the camera is "
@@ -281,8 +281,8 @@ def _collision_rows() -> tuple[Param, ...]:
 
 FUSER_PARAMETERS = ParameterTable("fuser", "Fuser node (vessel_track fuser): screen tracks -> sea-plane tracks, "
                                   "the vessel of interest picked.", (
-    Param("input_topic", "/vessel/tracks/screen", "Screen-space tracks from the tracker (VesselTrackArray)."),
-    Param("output_topic", "/vessel/tracks", "Tracks with world position, covariance, lat/lon (VesselTrackArray)."),
+    Param("input_topic", "vessel/tracks/screen", "Screen-space tracks from the tracker (VesselTrackArray)."),
+    Param("output_topic", "vessel/tracks", "Tracks with world position, covariance, lat/lon (VesselTrackArray)."),
     Param("qos_depth", 10, "Queue depth of the reliable input and output.", value_range=(1, 1000)),
     *state_rows(),
     standby_row(),

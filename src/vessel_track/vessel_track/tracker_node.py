@@ -70,7 +70,8 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
     has one: every vessel is tracked, and each track's confidence is its probability of being the target.
     ``with_labels`` also returns each kept detection's class (its first accepted hypothesis, '' without one).
     A detection with a score outside [0, 1] is left out, as the node refuses it (``message_checks``). Boxes come
-    back in the calibration's reference image (``pose_input``): the array's pose must have passed ``pose_refusal``.
+    back in the calibration's reference image (``pose_input``): the array's pose must have passed ``pose_refusal``;
+    a box the map cannot place (beyond the lens's reach in the reference image) is left out.
     """
     boxes = []
     scores = []
@@ -97,8 +98,10 @@ def detections_to_arrays(msg: Detection2DArray, classes: frozenset[str] | None,
         labels.append(next((r.hypothesis.class_id for r in det.results
                             if classes is None or r.hypothesis.class_id in classes), ""))
     in_image = np.array(boxes, dtype=float).reshape(-1, 4)
-    arrays = boxes_in_reference(msg.camera_pose, in_image), np.array(scores, dtype=float)
-    return (*arrays, labels) if with_labels else arrays
+    mapped = boxes_in_reference(msg.camera_pose, in_image)
+    placed = np.all(np.isfinite(mapped), axis=1) | ~np.all(np.isfinite(in_image), axis=1)  # lost only by the map
+    arrays = mapped[placed], np.array(scores, dtype=float).reshape(-1)[placed]
+    return (*arrays, [label for label, keep in zip(labels, placed, strict=True) if keep]) if with_labels else arrays
 
 
 def load_detection_inputs(path) -> tuple[frozenset[str] | None, str]:

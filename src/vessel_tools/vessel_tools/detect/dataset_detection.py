@@ -94,7 +94,8 @@ class DatasetPoser:
         height, width = image.shape[:2]
         detections = detections.in_calibrated_pixels((width, height), detector.reference_wh)
         boxes = pose.view.boxes_in_reference(detections.boxes_xyxy, detector.reference_wh, detector.reference_wh)
-        return dataclasses.replace(detections, boxes_xyxy=boxes)
+        mapped = dataclasses.replace(detections, boxes_xyxy=boxes)
+        return mapped.take(np.all(np.isfinite(boxes), axis=1))  # a box beyond the lens's reach has no place there
 
 
 def dataset_poser(dataset, camera, values) -> DatasetPoser | None:
