@@ -10,6 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    package_data={"vessel_tools.view": ["static/*"]},  # the page's own files, served by ./vessel view
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -29,6 +30,7 @@ setup(
             "eval = vessel_tools.cli:evaluate",
             "pipeline = vessel_tools.cli:pipeline",
             "fit = vessel_tools.cli:fit",
+            "view = vessel_tools.cli:view",
             "bag_build = vessel_tools.detect.bag_build:main",
         ],
     },
