@@ -16,7 +16,7 @@ USER_TEXTS = [*DOCS, REPO / "README.md", *sorted((REPO / "models").glob("*.md"))
 
 
 GENERATED_MARK = "<!-- the table below is written by"
-"""Where a doc's generated reference (``./vessel params render``) starts: it grows with the parameters, not the prose."""
+"""Where a doc's generated reference (``./vessel params render``) starts: it grows with the parameters, not prose."""
 
 
 def _lines(path: Path) -> int:

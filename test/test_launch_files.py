@@ -67,7 +67,8 @@ def test_graph_launch_file_starts_every_graph_node_with_both_parameter_files(mon
     assert {"params_file", "calib_file", "source", "rate", "use_sim_time", "respawn", "managed", "record"} <= declared
     context = {"params_file": str(REPO_ROOT / "config/aitas.yaml"), "calib_file": str(REPO_ROOT /
                "config/aitas_camera.yaml"), "source": "bags/video_13", "rate": "4", "use_sim_time": "auto",
-               "respawn": "false", "managed": "false", "record": ""}
+               "respawn": "false", "managed": "false", "record": "",
+               "namespace": ""}
     nodes = module._nodes(context)
     assert [(n.kwargs["package"], n.kwargs["executable"]) for n in nodes] == [
         (g.package, g.executable) for g in GRAPH_NODES
@@ -98,7 +99,7 @@ def test_the_launched_camera_waits_for_the_detector_unless_told_otherwise(monkey
     params.write_text(yaml.safe_dump({"camera": {"ros__parameters": camera_block}}))
     context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
                "source": "bags/video_13", "rate": rate, "use_sim_time": "auto", "respawn": "false",
-               "managed": "false", "record": ""}
+               "managed": "false", "record": "", "namespace": ""}
     camera = module._nodes(context)[0].kwargs["ros_arguments"]
     assert ("wait_for_subscribers:=1" in camera) == waits
 
@@ -117,7 +118,7 @@ def test_the_launched_cameras_wait_follows_the_shared_block_and_a_bad_rate_stops
     params.write_text(yaml.safe_dump(blocks))
     context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
                "source": "bags/video_13", "rate": rate, "use_sim_time": "auto", "respawn": "false",
-               "managed": "false", "record": ""}
+               "managed": "false", "record": "", "namespace": ""}
     if message is None:
         assert "wait_for_subscribers:=1" not in module._nodes(context)[0].kwargs["ros_arguments"]
     else:
@@ -125,10 +126,39 @@ def test_the_launched_cameras_wait_follows_the_shared_block_and_a_bad_rate_stops
             module._nodes(context)
 
 
+def test_a_namespaced_launch_puts_every_node_its_blocks_and_its_clock_under_the_namespace(monkeypatch, tmp_path):
+    """``namespace:=cam_a``: one camera of several in one domain, each node's blocks reach ``/cam_a/<node>``."""
+    import shutil
+
+    import yaml
+
+    module = _load_graph_launch(monkeypatch)
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"qos_depth": 3}},
+                                      "tracker": {"ros__parameters": {"gate_px": 55.0}}}))
+    context = {"params_file": str(params), "calib_file": str(REPO_ROOT / "config/aitas_camera.yaml"),
+               "source": "bags/video_13", "rate": "4", "use_sim_time": "auto", "respawn": "false",
+               "managed": "false", "record": "", "namespace": "cam_a"}
+    nodes = {node.kwargs["name"]: node.kwargs for node in module._nodes(context)}
+    try:
+        for name, kwargs in nodes.items():
+            assert kwargs["namespace"] == "/cam_a" and kwargs["remappings"] == [("/clock", "/cam_a/clock")]
+            files, extra = kwargs["parameters"][:2], yaml.safe_load(Path(kwargs["parameters"][2]).read_text())
+            assert files == [context["params_file"], context["calib_file"]] and list(extra) == [f"/cam_a/{name}"]
+        assert nodes["tracker"]["parameters"][2] != nodes["fuser"]["parameters"][2]
+        tracker = yaml.safe_load(Path(nodes["tracker"]["parameters"][2]).read_text())["/cam_a/tracker"]
+        assert tracker["ros__parameters"] == {"gate_px": 55.0}  # its own block; the /** one applies as it is
+    finally:
+        shutil.rmtree(Path(nodes["camera"]["parameters"][2]).parent, ignore_errors=True)
+    with pytest.raises(RuntimeError, match="namespace:=2cams"):
+        module._nodes({**context, "namespace": "2cams"})
+
+
 def test_a_mistyped_parameter_file_stops_the_graph_launch(monkeypatch):
     module = _load_graph_launch(monkeypatch)
     context = {"params_file": "config/aitas_typo.yaml", "calib_file": "config/aitas_camera.yaml", "source": "",
-               "rate": "1.0", "use_sim_time": "auto", "respawn": "false", "managed": "false", "record": ""}
+               "rate": "1.0", "use_sim_time": "auto", "respawn": "false", "managed": "false", "record": "",
+               "namespace": ""}
     with pytest.raises(RuntimeError, match="aitas_typo.yaml is not a file"):
         module._nodes(context)
 
@@ -157,7 +187,8 @@ def test_respawn_treats_every_node_as_the_graph_runner_does(monkeypatch, tmp_pat
     module = _load_graph_launch(monkeypatch)
     context = {"params_file": str(REPO_ROOT / "config/aitas.yaml"), "calib_file": str(REPO_ROOT /
                "config/aitas_camera.yaml"), "source": "bags/video_13", "rate": "4", "use_sim_time": "auto",
-               "respawn": "true", "managed": "false", "record": str(tmp_path / "rec")}
+               "respawn": "true", "managed": "false", "record": str(tmp_path / "rec"),
+               "namespace": ""}
     entities = module._nodes(context)
     nodes = [entity for entity in entities if type(entity).__name__ == "Node"]
     assert [node.kwargs["name"] for node in nodes] == [g.name for g in GRAPH_NODES] + [RECORDER.name]

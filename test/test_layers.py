@@ -35,7 +35,7 @@ _BY_LAYER = {
     "common": """vessel_common vessel_common.errors vessel_common.imports vessel_common.paths vessel_common.state_file
                  vessel_common.command_line vessel_common.parameter_names vessel_common.parameter_table
                  vessel_common.input_gaps
-                 vessel_common.ros_arguments
+                 vessel_common.ros_arguments vessel_common.graph_names
                  vessel_calib vessel_calib.geodesy
                  vessel_detect vessel_track vessel_tools""",
     "core": """vessel_calib.camera_model vessel_calib.calibration_parameters vessel_calib.params vessel_calib.gps_track
@@ -48,6 +48,7 @@ _BY_LAYER = {
                vessel_detect.detections_csv vessel_detect.parameter_tables vessel_detect.replay_pacing
                vessel_detect.resume_files vessel_detect.horizon
                vessel_detect.class_names vessel_detect.network_input vessel_detect.bag_topics
+               vessel_detect.detector_sharing
                vessel_track.deferred_imports vessel_track.tracker vessel_track.fusion
                vessel_track.selection vessel_track.smoothing vessel_track.distance_model vessel_track.error_model
                vessel_track.fuser_settings vessel_track.parameter_tables vessel_track.message_checks
@@ -63,7 +64,9 @@ _BY_LAYER = {
     "nodes": """vessel_detect.camera_node vessel_detect.detector_node vessel_detect.recorder_node
                 vessel_detect.replay_detector_node vessel_track.tracker_node vessel_track.fuser_node
                 vessel_track.gps_publisher_node""",
-    "bringup": """vessel_bringup vessel_bringup.graph_nodes vessel_bringup.graph_watcher vessel_bringup.graph""",
+    "bringup": """vessel_bringup vessel_bringup.graph_nodes vessel_bringup.graph_watcher vessel_bringup.graph
+                  vessel_bringup.graph_runner vessel_bringup.fleet vessel_bringup.fleet_watcher
+                  vessel_bringup.node_host""",
     "tools": """vessel_tools.calib vessel_tools.calib.dataset vessel_tools.calib.calibration
                 vessel_tools.calib.calibration_plot vessel_tools.calib.gps_association
                 vessel_tools.calib.pairs_csv vessel_tools.calib.pair_checks vessel_tools.calib.homography
@@ -75,17 +78,22 @@ _BY_LAYER = {
                 vessel_tools.detect.training.loss vessel_tools.detect.training.model
                 vessel_tools.detect.training.model_card
                 vessel_tools.detect.training.settings vessel_tools.detect.training.train_cli
-                vessel_tools.detect.training.trainer
+                vessel_tools.detect.training.trainer vessel_tools.detect.training.webcams
+                vessel_tools.detect.image_folder vessel_tools.detect.image_scores vessel_tools.detect.image_cli
                 vessel_tools.track vessel_tools.track.offline_data vessel_tools.track.pipeline
                 vessel_tools.track.evaluation vessel_tools.track.appearance vessel_tools.track.distance_model_fit
                 vessel_tools.track.error_model_fit vessel_tools.track.simulation
-                vessel_tools.track.tracking_score vessel_tools.track.pipeline_results""",
+                vessel_tools.track.tracking_score vessel_tools.track.pipeline_results
+                vessel_tools.view vessel_tools.view.state vessel_tools.view.status vessel_tools.view.geometry
+                vessel_tools.view.server vessel_tools.view.foxglove_bridge vessel_tools.view.node
+                vessel_tools.view.app""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
                vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart vessel_tools.bench_soak
                vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page
                vessel_tools.parameter_docs
                vessel_tools.calibrate_options vessel_tools.calibrate_pairs vessel_tools.calibrate_box_anchor
-               vessel_tools.calibrate_output vessel_tools.bench_graph vessel_tools.bench_report""",
+               vessel_tools.calibrate_output vessel_tools.bench_graph vessel_tools.bench_report
+               vessel_tools.view.bench vessel_tools.bench_cameras vessel_tools.bench_cameras_report""",
 }
 LAYER_OF = {module: layer for layer, names in _BY_LAYER.items() for module in names.split()}
 

@@ -19,10 +19,12 @@ PACKAGES = ("vessel_common", "vessel_calib", "vessel_detect", "vessel_track", "v
 ROSDEP_KEY = {
     "numpy": "python3-numpy", "cv2": "python3-opencv", "yaml": "python3-yaml", "scipy": "python3-scipy",
     "matplotlib": "python3-matplotlib", "onnxruntime": "python3-onnxruntime-pip", "mcap": "python3-mcap-pip",
-    "rosbags": "python3-rosbags-pip", "filterpy": "python3-filterpy-pip",
+    "rosbags": "python3-rosbags-pip", "filterpy": "python3-filterpy-pip", "websockets": "python3-websockets",
 }
-OPTIONAL = {"torch", "onnx2torch", "onnx", "backports", "compression", "vessel_detect"}
-"""The training extra (requirements-train.txt), version fallbacks imported inside try blocks, and vessel_detect: the
+OPTIONAL = {"torch", "onnx2torch", "onnx", "backports", "compression", "vessel_detect", "foxglove", "selenium"}
+"""The training extra (requirements-train.txt), the view extra (requirements-view.txt: foxglove-sdk for
+``view --foxglove-port``, selenium for the browser test), version fallbacks imported inside try blocks, and
+vessel_detect: the
 calibration tool runs its detector for a calibration without labels when it is installed (``calibrate --from
 detections``; an ImportError says so), and declaring it would make vessel_calib and vessel_detect depend on each
 other."""

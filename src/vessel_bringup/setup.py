@@ -23,6 +23,7 @@ setup(
     entry_points={
         "console_scripts": [
             "graph = vessel_bringup.graph:main",
+            "host = vessel_bringup.node_host:main",
         ],
     },
 )

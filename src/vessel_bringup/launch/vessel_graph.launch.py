@@ -6,7 +6,9 @@ fast as the graph consumes), ``use_sim_time`` (``auto``: true when the source is
 the graph's time, false for a live device), ``record`` (also record the graph's outputs into this bag folder, as
 ``./vessel graph --record`` does), ``respawn`` (restart a node that fails, as ``./vessel graph --respawn`` does:
 see below), ``managed`` (the camera and the detector as lifecycle nodes, configured and activated by this launch:
-``camera_managed``, ``detector_managed``). The node list is ``vessel_bringup.graph_nodes.GRAPH_NODES`` (and its
+``camera_managed``, ``detector_managed``), ``namespace`` (the graph of one camera of several: its topics
+``/NAME/vessel/fix``, its clock ``/NAME/clock``, the node blocks of the parameter files under ``/NAME/<node>``, as
+``./vessel graph --namespace`` does). The node list is ``vessel_bringup.graph_nodes.GRAPH_NODES`` (and its
 ``RECORDER``), the same one ``./vessel graph`` starts on a pip-only install.
 
 ``respawn:=true`` treats every node as ``./vessel graph --respawn`` does (``graph_nodes``): a node that exits with
@@ -50,15 +52,19 @@ from vessel_bringup.graph_nodes import (
     RECORDER,
     camera_command_line,
     camera_waits_for_detector,
+    clock_topic,
     file_parameters,
+    namespaced_blocks,
     respawn_files,
     restart_delay_s,
     restart_wanted,
     sim_time_for_source,
 )
 from vessel_common.errors import VesselError
+from vessel_common.graph_names import graph_namespace
 
-ARGUMENTS = ("params_file", "calib_file", "source", "rate", "use_sim_time", "record", "respawn", "managed")
+ARGUMENTS = ("params_file", "calib_file", "source", "rate", "use_sim_time", "record", "respawn", "managed",
+             "namespace")
 
 
 def _nodes(context):
@@ -76,22 +82,40 @@ def _nodes(context):
     use_sim_time = sim_time_for_source(values["source"]) if values["use_sim_time"] == "auto" else \
         values["use_sim_time"].lower() == "true"
     respawn = values["respawn"].lower() == "true"
-    state_dir = Path(tempfile.mkdtemp(prefix="vessel_graph_state_")) if respawn else None
+    try:
+        namespace = graph_namespace(values["namespace"])
+    except VesselError as error:
+        raise RuntimeError(f"namespace:={values['namespace']}: {error}") from None
+    state_dir = Path(tempfile.mkdtemp(prefix="vessel_graph_state_")) if respawn or namespace else None
     entities = []
     for graph_node in GRAPH_NODES + ((RECORDER,) if values["record"].strip() else ()):
         ros_arguments = ["-p", f"use_sim_time:={'true' if use_sim_time else 'false'}"]
         ros_arguments += _per_run_arguments(graph_node.name, values)
-        if state_dir is not None:
+        if respawn:
             ros_arguments += _assignments(respawn_files(graph_node.name, state_dir))
         common = dict(package=graph_node.package, name=graph_node.name,
                       parameters=[values["params_file"], values["calib_file"]], ros_arguments=ros_arguments,
                       output="screen", emulate_tty=True)
+        if namespace:  # the node's blocks under /NAME/<node>, its own clock
+            common.update(namespace=namespace, remappings=[("/clock", clock_topic(namespace))])
+            common["parameters"] = [*common["parameters"], _namespaced_file(graph_node.name, namespace, values,
+                                                                            state_dir)]
         managed = graph_node.name in ("camera", "detector") and values["managed"].lower() == "true"
         make = functools.partial(_managed if managed else _plain, graph_node.executable, common)
         entities += _respawning(make, graph_node.name) if respawn else make()
     if state_dir is not None:  # the state files live as long as the launch: removed once its nodes are gone
         atexit.register(shutil.rmtree, state_dir, ignore_errors=True)  # (at its shutdown event they still write)
     return entities
+
+
+def _namespaced_file(name: str, namespace: str, values: dict, folder: Path) -> str:
+    """A parameter file with node ``name``'s blocks of the parameter files under its namespaced name."""
+    import yaml
+
+    path = folder / f"{name}.namespaced.yaml"
+    blocks = namespaced_blocks([values["params_file"], values["calib_file"]], name, namespace)
+    path.write_text(yaml.safe_dump(blocks))
+    return str(path)
 
 
 def _assignments(parameters: dict) -> list[str]:
@@ -167,7 +191,7 @@ def _managed(executable: str, common: dict, restarted: bool = False) -> list:
     from launch_ros.events.lifecycle import ChangeState
     from lifecycle_msgs.msg import Transition
 
-    node = LifecycleNode(executable=executable + "_managed", namespace="", **common)
+    node = LifecycleNode(executable=executable + "_managed", **{"namespace": "", **common})
 
     def transition(transition_id):
         return ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id)
@@ -177,12 +201,15 @@ def _managed(executable: str, common: dict, restarted: bool = False) -> list:
         node,
         RegisterEventHandler(OnStateTransition(target_lifecycle_node=node, goal_state="inactive",
                                                entities=[EmitEvent(event=transition(Transition.TRANSITION_ACTIVATE))])),
-        _once_answering(common["name"], configure) if restarted else EmitEvent(event=configure),
+        _once_answering(f"{common.get('namespace', '')}/{common['name']}", configure) if restarted
+        else EmitEvent(event=configure),
     ]
 
 
 def _once_answering(name: str, event) -> OpaqueFunction:
     """Emit ``event`` once node ``name``'s ``get_state`` service answers: a restarted node's, not the dead one's.
+
+    ``name``: the node's fully qualified name (``/camera``, ``/a/camera``).
 
     The killed process's services stay known for a while (its DDS lease): launch_ros sent a restarted node's
     ``configure`` at once, to the dead one alone, and waited for its answer for good (the node stayed unconfigured).
@@ -195,7 +222,7 @@ def _once_answering(name: str, event) -> OpaqueFunction:
         from lifecycle_msgs.srv import GetState
 
         ros_node = get_ros_node(context)
-        client = ros_node.create_client(GetState, f"/{name}/get_state")
+        client = ros_node.create_client(GetState, f"{name}/get_state")
 
         def ask() -> None:
             while not context.is_shutdown:
@@ -234,5 +261,8 @@ def generate_launch_description():
                                           "most five times (then the launch stops); the tracker and the fuser resume "
                                           "from a state file, the camera after its last frame, the recorder into "
                                           "RECORD.1, ..."),
+        DeclareLaunchArgument("namespace", default_value="",
+                              description="run the graph under this namespace, one camera of several in one ROS "
+                                          "domain: /NAME/vessel/fix, ..., its own clock /NAME/clock; '': none"),
         OpaqueFunction(function=_nodes),
     ])

@@ -9,6 +9,7 @@ import yaml
 
 from vessel_bringup import graph
 from vessel_bringup.graph_nodes import GRAPH_NODES
+from vessel_common.errors import VesselError
 
 
 class _FakeProcess:
@@ -48,7 +49,10 @@ def test_a_spare_gets_its_nodes_blocks_under_its_namespaced_name(tmp_path, monke
     written = yaml.safe_load((tmp_path / "logs" / "fuser.standby_1.overrides.yaml").read_text())
     assert written == {"/standby_1/fuser": {"ros__parameters": {
         "selection.recent_evidence_s": 8.0, "selection.evidence_clip": 4.0, "qos_depth": 7,
-        "state_file": "/tmp/fuser.state", "standby": True}}}
+        "state_file": "/tmp/fuser.state", "standby": True,
+        # one namespace deeper, its relative topics would be /standby_1/vessel/...: given as the active node's
+        "input_topic": "/vessel/tracks/screen", "output_topic": "/vessel/tracks",
+        "collision_alerts_topic": "/vessel/collision_alerts"}}}
 
     active = runner.running["fuser"].process
     promoted = runner.promote_spare("fuser")
@@ -66,6 +70,39 @@ class _ExitedProcess(_FakeProcess):
 
     def poll(self):
         return self.returncode
+
+
+def test_a_namespaced_graph_keeps_its_nodes_blocks_clock_files_and_spares_apart(tmp_path, monkeypatch):
+    """``--namespace cam_a``: one camera of several, nothing of it keyed by a bare node name another camera shares."""
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"use_sim_time": False}},
+                                      "tracker": {"ros__parameters": {"gate_px": 55.0}}}))
+    spawned = []
+
+    def fake_spawn(self, node, args, label, append_log, parameters, ignore_sigusr1=False):
+        spawned.append((args, label))
+        return graph.RunningNode(node, _FakeProcess(), None, None, parameters)
+
+    monkeypatch.setattr(graph.GraphRunner, "_spawn", fake_spawn)
+    runner = graph.GraphRunner([params], log_dir=tmp_path / "logs", namespace="cam_a")
+    assert runner.namespace == "/cam_a" and runner.log_dir == tmp_path / "logs" / "cam_a"
+    tracker = next(node for node in GRAPH_NODES if node.name == "tracker")
+    runner.start(tracker, runner.respawn_files("tracker"))
+    args, _ = spawned[-1]
+    assert ["-r", "__ns:=/cam_a", "-r", "/clock:=/cam_a/clock"] == args[4:8]
+    state_file = str(tmp_path / "logs" / "cam_a" / "tracker.state")
+    written = yaml.safe_load((tmp_path / "logs" / "cam_a" / "tracker.overrides.yaml").read_text())
+    assert written == {"/cam_a/tracker": {"ros__parameters": {"gate_px": 55.0, "state_file": state_file}}}
+    spare = runner.start_spare("tracker")
+    args, label = spawned[-1]
+    assert spare.namespace == "/cam_a/standby_1" and label == "tracker.standby_1"
+    assert ["-r", "__ns:=/cam_a/standby_1", "-r", "/clock:=/cam_a/clock"] == args[4:8]
+    written = yaml.safe_load((tmp_path / "logs" / "cam_a" / "tracker.standby_1.overrides.yaml").read_text())
+    assert written["/cam_a/standby_1/tracker"]["ros__parameters"] == {
+        "gate_px": 55.0, "state_file": state_file, "standby": True,
+        "input_topic": "/cam_a/vessel/detections", "output_topic": "/cam_a/vessel/tracks/screen"}
+    with pytest.raises(VesselError, match="namespace '2cams'"):
+        graph.GraphRunner([params], namespace="2cams")
 
 
 def test_under_respawn_every_node_keeps_its_files_and_a_failed_one_is_restarted_with_them(tmp_path, monkeypatch):
@@ -200,10 +237,11 @@ class _RunnerOfNoProcess:
     patience_s = 30.0
     made: list[_RunnerOfNoProcess] = []
 
-    def __init__(self, params, log_dir=None, echo=False):
+    def __init__(self, params, log_dir=None, echo=False, namespace=""):
         import time
 
         self.running, self.spares, self.spares_wanted, self.stops = {}, {}, set(), 0
+        self.namespace = namespace
         self.give_up = time.monotonic() + self.patience_s
         self.made.append(self)
 

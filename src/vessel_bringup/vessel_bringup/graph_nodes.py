@@ -13,6 +13,7 @@ from pathlib import Path
 
 from vessel_calib.params import read_params_yaml
 from vessel_common.errors import DataError
+from vessel_common.graph_names import graph_namespace, resolve_topic
 from vessel_common.parameter_names import flatten
 
 
@@ -116,6 +117,49 @@ def respawn_files(name: str, state_dir: Path, state_files: bool = True) -> dict[
     if name in RESUMING_NODES:
         files["resume_file"] = str(Path(state_dir) / f"{name}.resume")
     return files
+
+
+def standby_topics(name: str, parameters: dict[str, object], namespace: str) -> dict[str, str]:
+    """The topic parameters of a hot standby of node ``name`` in graph ``namespace``, as absolute names.
+
+    A spare lives one namespace deeper (``/a/standby_1``), where the node's relative topics (``vessel/tracks``)
+    would resolve to topics nobody publishes; given as the active node's resolved names (``/a/vessel/tracks``) it
+    reads and would publish exactly what the active node does. ``parameters``: the node's values from the
+    parameter files and the run, over its table's defaults.
+    """
+    from vessel_track.parameter_tables import FUSER_PARAMETERS, GPS_PUBLISHER_PARAMETERS, TRACKER_PARAMETERS
+
+    tables = {table.node: table for table in (TRACKER_PARAMETERS, FUSER_PARAMETERS, GPS_PUBLISHER_PARAMETERS)}
+    topics = {}
+    for row in tables[name]:
+        if row.name.rsplit(".", 1)[-1].endswith("topic"):
+            value = str(parameters.get(row.name, row.default))
+            if value:  # '' is a topic switched off
+                topics[row.name] = resolve_topic(value, namespace)
+    return topics
+
+
+def clock_topic(namespace: str) -> str:
+    """The clock of graph ``namespace``: ``/clock`` for the root, ``/NAME/clock`` under a namespace.
+
+    ``/clock`` is absolute in rclpy, so every node of a namespaced graph has it remapped (``-r /clock:=/a/clock``):
+    two replaying cameras never drive one clock, and each graph runs on its own replay's time under
+    ``use_sim_time``.
+    """
+    return f"{graph_namespace(namespace)}/clock"
+
+
+def namespaced_blocks(params_files: Sequence[Path | str], name: str, namespace: str,
+                      overrides: dict[str, object] | None = None) -> dict[str, dict]:
+    """Node ``name``'s blocks of the parameter files (later winning), plus ``overrides``, under its namespaced name.
+
+    A block named ``tracker`` does not reach ``/a/tracker`` (rcl matches the fully qualified name); written again
+    as ``/a/tracker`` in one more file after them it does, and still beats the files' ``/**`` blocks as a node's
+    own block does. One parameter file then serves every camera.
+    """
+    parameters = file_parameters(params_files, name, with_shared=False)
+    parameters.update(flatten(overrides or {}))
+    return {f"{graph_namespace(namespace)}/{name}": {"ros__parameters": parameters}}
 
 
 STANDBY_NODES = ("tracker", "fuser", "gps_publisher")

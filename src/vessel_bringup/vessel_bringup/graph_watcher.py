@@ -3,7 +3,9 @@
 One watcher for the graph runner, the demo and the benchmarks. It is an rclpy node in a context of its own (so
 it never shares a context or signal handler with a node under test) that reads ``/diagnostics`` (each publisher's
 own count of matched readers, and every node's counters) and ``/vessel/tracks``; with ``log_frames`` it also notes
-when each frame's messages pass along the chain, reading only the header stamp of the serialised message.
+when each frame's messages pass along the chain, reading only the header stamp of the serialised message. A
+watcher of a graph under a namespace (one camera of several) reads that graph's topics (``/a/vessel/tracks``) and
+its nodes' reports only; its log keeps the topics' names without the namespace (``CHAIN``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import struct
 import time
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+
+from vessel_common.graph_names import graph_namespace, node_graph, resolve_topic
 
 IMAGE_TOPIC = "/camera/image_raw/compressed"
 DETECTIONS_TOPIC = "/vessel/detections"
@@ -95,7 +99,7 @@ class GraphWatcher:
     reaches the program as KeyboardInterrupt, so that it stops every node on the way out.
     """
 
-    def __init__(self, domain_id: int | None = None, log_frames: bool = False):
+    def __init__(self, domain_id: int | None = None, log_frames: bool = False, namespace: str = ""):
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.context import Context
@@ -106,10 +110,11 @@ class GraphWatcher:
         from vessel_msgs.msg import Detection2DArray, VesselTrackArray
 
         self._rclpy = rclpy
+        self.namespace = graph_namespace(namespace)
         self.context = Context()
         init = {"context": self.context, "signal_handler_options": SignalHandlerOptions.NO}
         rclpy.init(**init, **({"domain_id": domain_id} if domain_id is not None else {}))
-        self.node = rclpy.create_node("graph_watcher", context=self.context)
+        self.node = rclpy.create_node("graph_watcher", context=self.context, namespace=self.namespace or None)
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.log = ArrivalLog(CHAIN)
@@ -122,17 +127,22 @@ class GraphWatcher:
         # Serialised messages (raw=True): only the header stamp is read, so a 200 kB image costs no
         # deserialisation while the graph runs.
         self.subscriptions = {
-            TRACKS_TOPIC: self.node.create_subscription(
-                VesselTrackArray, TRACKS_TOPIC, self._raw_callback(TRACKS_TOPIC), reliable_qos(100), raw=True),
-            FIX_TOPIC: self.node.create_subscription(NavSatFix, FIX_TOPIC, self._on_fix, reliable_qos(100)),
+            TRACKS_TOPIC: self.node.create_subscription(VesselTrackArray, self.resolved(TRACKS_TOPIC),
+                                                        self._raw_callback(TRACKS_TOPIC), reliable_qos(100), raw=True),
+            FIX_TOPIC: self.node.create_subscription(NavSatFix, self.resolved(FIX_TOPIC), self._on_fix,
+                                                     reliable_qos(100)),
         }
         if log_frames:
             for topic, kind, qos in ((IMAGE_TOPIC, CompressedImage, SENSOR_DATA_QOS),
                                      (DETECTIONS_TOPIC, Detection2DArray, reliable_qos(100)),
                                      (SCREEN_TOPIC, VesselTrackArray, reliable_qos(100))):
-                self.subscriptions[topic] = self.node.create_subscription(kind, topic, self._raw_callback(topic),
-                                                                          qos, raw=True)
+                self.subscriptions[topic] = self.node.create_subscription(kind, self.resolved(topic),
+                                                                          self._raw_callback(topic), qos, raw=True)
         self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, reliable_qos(50))
+
+    def resolved(self, topic: str) -> str:
+        """The name of one of the graph's topics (``CHAIN``) in this watcher's graph: ``/a/vessel/fix`` under ``a``."""
+        return resolve_topic(topic.lstrip("/"), self.namespace)
 
     def _raw_callback(self, topic: str):
         def on_message(cdr, info) -> None:
@@ -157,8 +167,10 @@ class GraphWatcher:
     def _on_diagnostics(self, array) -> None:
         from vessel_common.health import matched_subscribers
 
-        self.matched.update(matched_subscribers(array, root_namespace_only=True))
+        self.matched.update(matched_subscribers(array, graph=self.namespace))
         for status in array.status:
+            if node_graph(status.name.rpartition("/")[0]) != self.namespace:
+                continue  # another camera's graph
             values = {kv.key: kv.value for kv in status.values}
             values["_message"] = status.message
             self.diagnostics[status.name] = values
@@ -185,8 +197,8 @@ class GraphWatcher:
         if not with_detector:
             del wanted[DETECTIONS_TOPIC]
         image_readers = 1 + (IMAGE_TOPIC in self.subscriptions)
-        links = [self.node.count_subscribers(IMAGE_TOPIC) >= image_readers or not with_camera]
-        links += [self.matched.get(topic, 0) >= n for topic, n in wanted.items()]
+        links = [self.node.count_subscribers(self.resolved(IMAGE_TOPIC)) >= image_readers or not with_camera]
+        links += [self.matched.get(self.resolved(topic), 0) >= n for topic, n in wanted.items()]
         if self.log_frames:  # and this watcher's own readers see a publisher on every topic after the camera
             links += [self.subscriptions[topic].get_publisher_count() >= 1 for topic in CHAIN[1:]
                       if topic != DETECTIONS_TOPIC or with_detector]
@@ -198,9 +210,9 @@ class GraphWatcher:
         For a graph split across hosts: the camera and detector here, the tracking (and perhaps a recorder) on
         another machine; a first reader matched is not enough, the tracker may not be that one.
         """
-        readers = self.node.count_subscribers(DETECTIONS_TOPIC)  # every one the graph knows, here or there
-        return (self.node.count_subscribers(IMAGE_TOPIC) >= 1 and readers >= 1
-                and self.matched.get(DETECTIONS_TOPIC, 0) >= readers)
+        readers = self.node.count_subscribers(self.resolved(DETECTIONS_TOPIC))  # every one known, here or there
+        return (self.node.count_subscribers(self.resolved(IMAGE_TOPIC)) >= 1 and readers >= 1
+                and self.matched.get(self.resolved(DETECTIONS_TOPIC), 0) >= readers)
 
     def close(self) -> None:
         """Shut the watcher's context down."""

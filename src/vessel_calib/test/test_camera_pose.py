@@ -107,3 +107,20 @@ def test_a_compass_alone_needs_the_horizon():
     _, estimator = _estimator("own_ship")
     pose = estimator.estimate(0.0, (76.0, None, None), None)
     assert not pose.valid and "horizon" in pose.problem
+
+
+def test_no_attitude_fits_a_vertical_line():
+    mounting = CameraMounting.from_camera(CAMERA, REFERENCE)
+    assert mounting.tilt_from_line((1.0, 0.0, -640.0), CAMERA.far_edge_line(), 76.0) is None
+
+
+def test_the_horizon_teaches_the_bias_again_after_it_jumps():
+    mounting, estimator = _estimator("own_ship", sensor_sigma_deg=0.05)
+    truth = (76.0, 0.5, -1.0)
+    line = MeasuredLine(tuple(mounting.line_in_image(CAMERA.far_edge_line(), *truth)), 0.2, 1e-4)
+    for k in range(40):  # the sensor agrees with the horizon: the bias filter grows confident in zero
+        estimator.estimate(4.0 * k, truth, line)
+    jumped = (76.0, truth[1] + 1.0, truth[2])  # the sensor's pitch bias jumps by a degree
+    poses = [estimator.estimate(160.0 + 4.0 * k, jumped, line) for k in range(20)]
+    assert poses[0].problem.startswith("horizon rejected")
+    assert poses[-1].horizon_used and abs(poses[-1].pitch_deg - truth[1]) < 0.05

@@ -25,6 +25,8 @@ from vessel_calib.camera_pose import LINE_PROBE_PX, CameraMounting
 from vessel_common.errors import VesselError
 
 SOURCES = ("fixed", "horizon", "own_ship")
+REJECTIONS_BEFORE_RELEARNING = 5
+"""Horizons rejected in a row after which the sensor's bias is taken as unknown again (it may have jumped)."""
 
 SOURCE_NOT_GIVEN, SOURCE_FIXED, SOURCE_OWN_SHIP, SOURCE_HORIZON, SOURCE_FUSED = range(5)
 """The ``vessel_msgs/CameraPose`` source codes (an estimate that is not valid keeps the source it was tried with)."""
@@ -126,6 +128,7 @@ class AttitudeEstimator:
         self.settings = settings
         self._bias = _BiasFilter(settings.bias_drift_deg_per_s)
         self.horizons_rejected = 0
+        self._rejected_in_a_row = 0
 
     def expected_line(self, heading_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
         """Where the far edge should be in an image at this attitude (where to search for it)."""
@@ -157,8 +160,11 @@ class AttitudeEstimator:
             if line is None or not s.use_horizon:
                 return self._pose(SOURCE_FIXED, self.mounting.reference, np.zeros(2), 0.0,
                                   problem="horizon not found: the calibration's attitude")
-            pitch, roll, cov = self._tilt_of_line(line, heading)
-            return self._pose(SOURCE_HORIZON, (heading, pitch, roll), cov, 0.0, horizon_used=True)
+            tilt = self._tilt_of_line(line, heading)
+            if tilt is None:
+                return self._pose(SOURCE_FIXED, self.mounting.reference, np.zeros(2), 0.0,
+                                  problem="no attitude fits the measured horizon: the calibration's attitude")
+            return self._pose(SOURCE_HORIZON, (heading, *tilt[:2]), tilt[2], 0.0, horizon_used=True)
         if sensor is None:
             return PoseEstimate(False, SOURCE_OWN_SHIP, problem="no own-ship attitude for this image")
         heading, pitch, roll = sensor
@@ -166,8 +172,10 @@ class AttitudeEstimator:
         if pitch is None or roll is None:
             if line is None or not s.use_horizon:
                 return PoseEstimate(False, SOURCE_OWN_SHIP, problem="compass only and the horizon is not found")
-            p, r, cov = self._tilt_of_line(line, heading)
-            return self._pose(SOURCE_HORIZON, (heading, p, r), cov, heading_var, horizon_used=True)
+            tilt = self._tilt_of_line(line, heading)
+            if tilt is None:
+                return PoseEstimate(False, SOURCE_OWN_SHIP, problem="compass only and no attitude fits the horizon")
+            return self._pose(SOURCE_HORIZON, (heading, *tilt[:2]), tilt[2], heading_var, horizon_used=True)
         return self._fused(stamp, heading, np.array([pitch, roll]), line, heading_var)
 
     def _fused(self, stamp: float, heading: float, measured: np.ndarray, line: MeasuredLine | None,
@@ -179,28 +187,38 @@ class AttitudeEstimator:
         corrected_cov = np.diag(sensor_var + self._bias.variance)
         if line is None or not s.use_horizon:
             return self._pose(SOURCE_OWN_SHIP, (heading, *corrected), corrected_cov, heading_var)
-        p, r, horizon_cov = self._tilt_of_line(line, heading, start=tuple(corrected))
+        tilt = self._tilt_of_line(line, heading, start=tuple(corrected))
+        if tilt is None:
+            return self._pose(SOURCE_OWN_SHIP, (heading, *corrected), corrected_cov, heading_var,
+                              problem="no attitude fits the measured horizon")
+        p, r, horizon_cov = tilt
         horizon = np.array([p, r])
         difference = measured - horizon
         spread = np.sqrt(np.diag(corrected_cov) + np.diag(horizon_cov))
-        if np.any(np.abs(difference - self._bias.bias) > s.gate_sigmas * spread):
+        if not np.all(np.abs(difference - self._bias.bias) <= s.gate_sigmas * spread):
             self.horizons_rejected += 1
+            self._rejected_in_a_row += 1
+            if self._rejected_in_a_row >= REJECTIONS_BEFORE_RELEARNING:
+                self._bias.variance = np.full(2, 1.0)  # the bias may have jumped: let the horizon teach it again
             return self._pose(SOURCE_OWN_SHIP, (heading, *corrected), corrected_cov, heading_var,
                               problem="horizon rejected: too far from the attitude sensor")
+        self._rejected_in_a_row = 0
         self._bias.update(difference, sensor_var + np.diag(horizon_cov))
-        corrected = measured - self._bias.bias
-        corrected_cov = np.diag(sensor_var + self._bias.variance)
+        # Fused with the sensor as corrected before this horizon taught the bias: the horizon counts once.
         info = np.linalg.inv(corrected_cov) + np.linalg.inv(horizon_cov)
         cov = np.linalg.inv(info)
         fused = cov @ (np.linalg.solve(corrected_cov, corrected) + np.linalg.solve(horizon_cov, horizon))
         return self._pose(SOURCE_FUSED, (heading, *fused), cov, heading_var, horizon_used=True)
 
     def _tilt_of_line(self, line: MeasuredLine, heading: float,
-                      start: tuple[float, float] | None = None) -> tuple[float, float, np.ndarray]:
-        """Pitch, roll and their 2x2 covariance (deg^2) from a measured line."""
+                      start: tuple[float, float] | None = None) -> tuple[float, float, np.ndarray] | None:
+        """Pitch, roll and their 2x2 covariance (deg^2) from a measured line; None when no attitude fits it."""
         if start is None:
             start = tuple(self.mounting.reference[1:])
-        pitch, roll, J = self.mounting.tilt_from_line(line.abc, self.far_edge, heading, start)
+        solved = self.mounting.tilt_from_line(line.abc, self.far_edge, heading, start)
+        if solved is None:
+            return None
+        pitch, roll, J = solved
         sigma0 = max(line.sigma_px, self.settings.horizon_floor_px)
         lever = LINE_PROBE_PX * line.slope_sigma
         heights_cov = np.array([[sigma0 ** 2 + lever ** 2, sigma0 ** 2 - lever ** 2],

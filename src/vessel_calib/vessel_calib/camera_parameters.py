@@ -33,7 +33,7 @@ def missing_calibration_keys(given: set[str], prefix: str = "camera") -> list[st
     return [f"{prefix}.{key}" for key in REQUIRED_CAMERA_KEYS if f"{prefix}.{key}" not in given]
 
 
-def declare_camera_model(node: Node, prefix: str = "camera"):
+def declare_camera_model(node: Node, prefix: str = "camera", required: bool = True):
     """Declare the ``camera.*`` calibration parameters and build the camera model from them.
 
     A calibration must be given (``--params-file`` of the file ``calibrate`` writes), with every key of
@@ -41,6 +41,8 @@ def declare_camera_model(node: Node, prefix: str = "camera"):
     corrected calibration of the challenge camera is used only when asked for (``camera.builtin_calibration:
     true``, for tests and a first look at the challenge data). A calibration that cannot be used raises
     ``CalibrationError`` naming the key; nodes let it stop them at start (``run_node`` prints it as one line).
+    ``required`` False: a node that can work without one (a detector on a camera not calibrated yet) gets None when
+    no ``camera.*`` key at all is given; a partial calibration is refused all the same.
     """
     rows = calibration_rows(prefix)
     values = declare_table(node, ParameterTable(node.get_name(), "The camera's calibration (read-only)", rows))
@@ -49,6 +51,8 @@ def declare_camera_model(node: Node, prefix: str = "camera"):
     missing = missing_calibration_keys(given, prefix)
     if missing and not builtin:
         if len(missing) == len(REQUIRED_CAMERA_KEYS):
+            if not required:
+                return None
             raise CalibrationError(
                 f"{node.get_name()}: no calibration given: pass the calibration file `calibrate` writes, e.g. "
                 f"--params-file config/aitas_camera.yaml (or -p {prefix}.{BUILTIN_CALIBRATION}:=true for the "

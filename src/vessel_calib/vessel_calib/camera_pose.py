@@ -112,15 +112,19 @@ class CameraMounting:
         return normalised_line(line)
 
     def tilt_from_line(self, image_abc: Sequence[float], reference_abc: Sequence[float], heading_deg: float,
-                       start: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float, np.ndarray]:
+                       start: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float, np.ndarray] | None:
         """Pitch and roll (degrees) at which the reference line falls on a line measured in the image.
 
         The heading is given (a compass, or the reference's): a line has two degrees of freedom, so it fixes pitch
         and roll. The lines are compared by their heights at two points either side of the lens centre; Newton's
         method from ``start``. Returns pitch, roll and the 2x2 Jacobian of those heights with respect to (pitch,
-        roll) in px per degree, which turns the measured line's uncertainty into the attitude's.
+        roll) in px per degree, which turns the measured line's uncertainty into the attitude's. None when Newton
+        does not converge to a finite attitude within 20 degrees of the start (no attitude fits the line).
         """
-        target = _heights(np.asarray(image_abc, float), self.K[0, 2])
+        image_abc = np.asarray(image_abc, float)
+        if not abs(image_abc[1]) > 1e-6 * np.hypot(image_abc[0], image_abc[1]):
+            return None  # a (near) vertical line is no horizon
+        target = _heights(image_abc, self.K[0, 2])
         x = np.array(start, dtype=float)
         J = np.eye(2)
         for _ in range(8):
@@ -131,11 +135,16 @@ class CameraMounting:
                 (_heights(self.line_in_image(reference_abc, heading_deg, x[0], x[1] + 1e-3), self.K[0, 2])
                  - current) / 1e-3,
             ])
-            step = np.linalg.solve(J, target - current)
+            try:
+                step = np.linalg.solve(J, target - current)
+            except np.linalg.LinAlgError:
+                return None
             x = x + step
+            if not np.all(np.isfinite(x)) or np.max(np.abs(x - np.asarray(start))) > 20.0:
+                return None
             if np.max(np.abs(step)) < 1e-6:
-                break
-        return float(x[0]), float(x[1]), J
+                return float(x[0]), float(x[1]), J
+        return None
 
 
 def _reference_attitude(camera, reference_attitude) -> tuple[float, float, float]:

@@ -88,6 +88,15 @@ def test_a_standby_reads_its_active_nodes_snapshot_without_taking_it(tmp_path):
     assert path.is_file() and not (tmp_path / "tracker.state.resumed").exists()  # still the active node's
 
 
+def test_another_graphs_snapshot_is_refused(tmp_path):
+    """Two cameras' trackers given one state_file (a shared parameter file): neither resumes the other's tracks."""
+    path = tmp_path / "tracker.state"
+    StateFile(path, "tracker", "f", graph="/b").save(10.0, {"tracks": 3})
+    state, what = StateFile(path, "tracker", "f", graph="/a").resume(10.2)
+    assert state is None and "written by the tracker of graph '/b'" in what and "cold start" in what
+    assert StateFile(path, "tracker", "f", graph="/b").resume(10.2)[0] == {"tracks": 3}
+
+
 def test_the_fingerprint_of_a_set_is_the_same_in_every_process():
     """Pickled sets follow the per-process string hash; a restarted node must still recognise its settings."""
     code = ("from vessel_common.state_file import settings_fingerprint; "

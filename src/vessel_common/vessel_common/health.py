@@ -32,15 +32,16 @@ def steady_timer(node: Node, period_s: float, callback: Callable[[], None]):
 MATCHED_SUBSCRIBERS = "matched_subscribers."
 
 
-def matched_subscribers(array, root_namespace_only: bool = False) -> dict[str, int]:
+def matched_subscribers(array, graph: str | None = None) -> dict[str, int]:
     """Subscriptions matched by each topic's publisher, from a ``DiagnosticArray`` of ``NodeHealth`` nodes.
 
-    ``root_namespace_only``: leave out nodes in a namespace (a hot standby, ``standby_N/tracker``), whose
-    publishers carry nothing until promoted.
+    ``graph``: only the nodes right in that graph namespace ("" the root, "/a" camera a's), leaving out the other
+    cameras' graphs and every hot standby (``a/standby_N/tracker``), whose publishers carry nothing until promoted.
     """
     found: dict[str, int] = {}
+    parent = None if graph is None else graph.strip("/")
     for status in array.status:
-        if root_namespace_only and "/" in status.name:
+        if parent is not None and status.name.rpartition("/")[0] != parent:
             continue
         for item in status.values:
             if item.key.startswith(MATCHED_SUBSCRIBERS) and item.value.isdigit():
@@ -146,7 +147,8 @@ class NodeHealth:
     def publish(self) -> None:
         """Publish the current status, figures and problem counts."""
         status = DiagnosticStatus()
-        status.name = self._node.get_fully_qualified_name().lstrip("/")  # "tracker"; a spare's "standby_1/tracker"
+        # "tracker"; camera a's "a/tracker"; a spare's "standby_1/tracker" (graph_names.status_name)
+        status.name = self._node.get_fully_qualified_name().lstrip("/")
         status.hardware_id = self._hardware_id
         with self._lock:
             level = self._status_level

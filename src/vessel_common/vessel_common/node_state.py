@@ -15,6 +15,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from vessel_common.errors import VesselError
+from vessel_common.graph_names import node_graph
 from vessel_common.health import NodeHealth
 from vessel_common.parameter_declaration import declare_parameter
 from vessel_common.state_file import STANDBY_DESCRIPTION, STATE_PARAMETERS, StateFile
@@ -43,7 +44,8 @@ class NodeState:
         self._health = health
         self.read_only = read_only
         self.file = StateFile(values["state_file"], kind, fingerprint, values["state_period_s"],
-                              values["state_max_age_s"]) if values["state_file"] else None
+                              values["state_max_age_s"], graph=node_graph(node.get_namespace())
+                              ) if values["state_file"] else None
 
     def resume(self, stamp: float, core) -> bool:
         """At the first message after a start: restore ``core`` from the state file if it fits ``stamp``.

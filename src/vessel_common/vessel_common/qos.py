@@ -37,6 +37,20 @@ def image_qos_profile(name: str, reliable_depth: int = 5) -> QoSProfile:
     raise VesselError(f"image_qos '{name}' unknown: use sensor_data or reliable")
 
 
+SENSOR_STREAM_QOS_CHOICES = ("reliable", "sensor_data")
+
+
+def sensor_stream_qos(name: str, depth: int = 200) -> QoSProfile:
+    """The QoS of a sensor's stream (an IMU, a GPS) read in full, named by a parameter: ``reliable`` or ``sensor_data``.
+
+    A reliable reader loses nothing of the bursts a replay sends between two images, but does not match a driver
+    that publishes best effort; ``sensor_data`` (best effort) matches every driver and may lose samples in bursts.
+    """
+    reliability = ReliabilityPolicy.RELIABLE if name == "reliable" else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=reliability,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
 def reliable_qos(depth: int = 10) -> QoSProfile:
     """Reliable, volatile, keep last ``depth``: detections, tracks and fixes, where no message may be lost."""
     return QoSProfile(

@@ -112,6 +112,24 @@ def with_command_line(node_factory: NodeFactory, args: Sequence[str]) -> NodeFac
                 {"__module__": node_factory.__module__, "__doc__": node_factory.__doc__})
 
 
+def hosted(node_class: type[Node], args: Sequence[str]) -> NodeFactory:
+    """``node_class`` made with ``args`` as its own ``--ros-args`` (name, namespace, parameter files, ``-p``).
+
+    For several nodes in one process (``vessel_bringup.node_host``): each gets its own command line, as if it
+    were a process of its own; the process's global arguments are not used.
+    """
+    rclpy_class = next(cls for cls in node_class.__mro__ if cls.__module__.startswith("rclpy."))
+
+    class OwnCommandLine(rclpy_class):
+        def __init__(self, node_name: str, **kwargs: Any) -> None:
+            given = [*(kwargs.pop("parameter_overrides", None) or ()), *command_line_overrides(args, node_name)]
+            super().__init__(node_name, parameter_overrides=given, cli_args=list(args), use_global_arguments=False,
+                             **kwargs)
+
+    return type(node_class.__name__, (node_class, OwnCommandLine),
+                {"__module__": node_class.__module__, "__doc__": node_class.__doc__})
+
+
 def command_line_overrides(args: Sequence[str], name: str) -> list[Parameter]:
     """The ``-p`` assignments of ``args`` for the node created as ``name``, typed as ``ros2 param set`` types them."""
     given = command_line_parameters(args, remapped_node_name(args, name))

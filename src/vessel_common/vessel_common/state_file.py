@@ -313,6 +313,7 @@ class StateFile:
     fingerprint: str
     period_s: float = 0.5
     max_age_s: float = 60.0
+    graph: str = ""  # the namespace of the node's graph (one camera's), so that another camera's file is refused
 
     def __post_init__(self) -> None:
         self.path = Path(self.path).expanduser()
@@ -343,6 +344,9 @@ class StateFile:
             return None, f"no state file {self.path}: cold start"
         try:
             saved = read_snapshot(self.path, self.node)
+            if saved.get("graph", "") != self.graph:
+                raise StateFileError(f"it was written by the {self.node} of graph {saved.get('graph') or '/'!r}, "
+                                     f"this one is of graph {self.graph or '/'!r} (two graphs given one state_file?)")
             if saved["fingerprint"] != self.fingerprint:
                 return None, f"state file {self.path} was written with other settings: cold start"
             age = stamp - float(saved["stamp"])
@@ -377,7 +381,7 @@ class StateFile:
         """
         try:
             payload = {"schema": SCHEMA, "version": VERSION, "node": self.node, "fingerprint": self.fingerprint,
-                       "stamp": float(stamp), "state": encode_state(state, f"{self.node} state")}
+                       "graph": self.graph, "stamp": float(stamp), "state": encode_state(state, f"{self.node} state")}
             text = json.dumps(payload, allow_nan=False, separators=(",", ":"))
         except (DataError, ValueError, TypeError) as error:
             raise DataError(f"{self.node} state cannot be saved to {self.path}: {error}") from None

@@ -405,7 +405,7 @@ def test_a_fixed_camera_keeps_the_identity_pose_and_the_detections_of_the_core_w
     assert _the_same_pose(pose, published)
     assert pose.valid and pose.source == CameraPose.SOURCE_FIXED and pose.problem == ""
     assert list(pose.image_to_reference) == IDENTITY and pose.focal_px == 0.0
-    assert pose.horizon_found  # measured and published, not used
+    assert not pose.horizon_found  # a fixed camera measures the horizon only for the annotated image
 
     values, camera = _shipped_values()
     core = build_detector(values, camera)

@@ -11,6 +11,17 @@ DEFAULT_GPS_TRUTH_TOPIC = "/vessel/gps_truth"
 DEFAULT_OWN_SHIP_FIX_TOPIC = "/own_ship/fix"
 DEFAULT_OWN_SHIP_IMU_TOPIC = "/own_ship/imu"
 
+
+
+def in_bag(topic: str) -> str:
+    """The name a node's topic has in a bag: a relative one (``camera/fix``) as if recorded without a namespace.
+
+    A graph under a namespace records its own topics without it and replays a bag's topics into it, so a bag of
+    one camera plays in any camera's graph.
+    """
+    return topic if not topic or topic.startswith("/") else "/" + topic
+
+
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE = "sensor_msgs/msg/Image"
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"

@@ -40,6 +40,7 @@ from vessel_common.lifecycle import PhasedLifecycle, release_publisher
 from vessel_common.node_parameters import declare_table
 from vessel_common.qos import LATCHED_QOS, image_qos_profile, reliable_qos
 from vessel_common.run import main_for
+from vessel_detect.bag_topics import in_bag
 from vessel_detect.file_sources import parse_utc
 from vessel_detect.image_source import AuxMessage, Frame, ImageSource
 from vessel_detect.parameter_tables import CAMERA_PARAMETERS
@@ -121,7 +122,7 @@ class _CameraPhases:
             self._start_utc = camera_start_utc(resume_data, p["source"]) or time.time()
         self.source = open_source(
             p["source"],
-            image_topic=p["image_topic"],
+            image_topic=in_bag(p["image_topic"]),
             aux_topics=self._aux_topics(),
             start_utc=self._start_utc,
             fps=p["fps"] or None,
@@ -155,7 +156,7 @@ class _CameraPhases:
         self.clock_pub = self._make_publisher(Clock, "/clock", 10) if self.publish_clock else None
         self.aux_pubs: dict[str, tuple[object, type]] = {}
         self.camera_fix_pub = self._make_publisher(NavSatFix, p["camera_fix_topic"], LATCHED_QOS)
-        self.aux_pubs[p["camera_fix_topic"]] = (self.camera_fix_pub, NavSatFix)
+        self.aux_pubs[in_bag(p["camera_fix_topic"])] = (self.camera_fix_pub, NavSatFix)
         self._make_aux_publishers()
         if self.rate == 0:
             self._subscribe_acks()
@@ -166,7 +167,7 @@ class _CameraPhases:
         if not p["republish"]:
             return []
         topics = (p["camera_fix_topic"], p["gps_truth_topic"], p["own_ship_fix_topic"], p["own_ship_imu_topic"])
-        return list(dict.fromkeys(topics))
+        return list(dict.fromkeys(in_bag(topic) for topic in topics))
 
     def _make_aux_publishers(self) -> None:
         """Publishers of the GPS truth and own-ship topics the source has (the camera fix has its own)."""
@@ -176,8 +177,9 @@ class _CameraPhases:
         for topic, message_type, depth in ((p["gps_truth_topic"], NavSatFix, 50),
                                            (p["own_ship_fix_topic"], NavSatFix, OWN_SHIP_QOS_DEPTH),
                                            (p["own_ship_imu_topic"], Imu, OWN_SHIP_QOS_DEPTH)):
-            if topic in self.source.aux_topics and topic not in self.aux_pubs:
-                self.aux_pubs[topic] = (self._make_publisher(message_type, topic, reliable_qos(depth)), message_type)
+            if in_bag(topic) in self.source.aux_topics and in_bag(topic) not in self.aux_pubs:
+                self.aux_pubs[in_bag(topic)] = (self._make_publisher(message_type, topic, reliable_qos(depth)),
+                                                message_type)
 
     def _read_resume_file(self) -> dict | None:
         """What the resume file holds (None without one, or when it is not a camera's: then from the first frame)."""
@@ -230,7 +232,8 @@ class _CameraPhases:
 
     def _activate(self) -> None:
         p = self.params
-        if p["camera_fix_from_parameters"] and p["camera_fix_topic"] not in getattr(self.source, "aux_topics", []):
+        if p["camera_fix_from_parameters"] and in_bag(p["camera_fix_topic"]) not in getattr(self.source, "aux_topics",
+                                                                                             []):
             self._publish_parameter_fix()
         how = "live" if self.live else ("as fast as consumed" if self.rate == 0 else f"at {self.rate:g}x")
         count = f"{self.total_frames} frames" if self.total_frames else "frames"
@@ -244,7 +247,8 @@ class _CameraPhases:
                             count=self._count, log=self.get_logger().info, progress=self._progress_text)
         saves = bool(p["resume_file"]) and not self.live
         resume = ResumeCursor(self._resume_point, save=self._save_resume if saves else None,
-                              latched=lambda item: isinstance(item, AuxMessage) and item.topic == p["camera_fix_topic"])
+                              latched=lambda item: isinstance(item, AuxMessage)
+                              and item.topic == in_bag(p["camera_fix_topic"]))
         self.replay = Replay(self._pacing_settings(), hooks, self._timing, self.acks, self.stats, live=self.live,
                              is_frame=lambda item: not isinstance(item, AuxMessage), resume=resume)
         self._worker = threading.Thread(target=self._run, name="camera-replay", daemon=True)

@@ -37,7 +37,7 @@ from vessel_common.errors import VesselError
 from vessel_common.health import NodeHealth, steady_timer
 from vessel_common.lifecycle import PhasedLifecycle, release_publisher
 from vessel_common.node_parameters import declare_table
-from vessel_common.qos import SENSOR_DATA_QOS, image_qos_profile, reliable_qos, stamp_to_sec
+from vessel_common.qos import SENSOR_DATA_QOS, image_qos_profile, reliable_qos, sensor_stream_qos, stamp_to_sec
 from vessel_common.run import main_for
 from vessel_detect.annotation import annotate
 from vessel_detect.detector import Detections
@@ -48,7 +48,10 @@ from vessel_detect.detector_params import (
     build_detector,
     detector_config,
     frame_poser,
+    model_spec,
+    open_model,
 )
+from vessel_detect.detector_sharing import SharedDetection
 from vessel_detect.image_codec import ImageError, bgr_to_image_fields, compressed_to_bgr, image_to_bgr
 from vessel_detect.image_queue import ImageQueue, QueuedImage
 from vessel_detect.own_ship_messages import sample_attitude_of_imu
@@ -107,8 +110,11 @@ class _DetectorPhases:
 
     ``_declare`` (parameters, calibration, health reports), ``_configure`` (the model loaded, the output
     publishers), ``_activate`` (image subscriptions and the worker thread), ``_deactivate`` (both stopped) and
-    ``_cleanup`` (the model and publishers released).
+    ``_cleanup`` (the model and publishers released). With ``shared`` (the detectors of several cameras in one
+    process, ``detector_sharing``) the model and the worker are the process's, not the node's.
     """
+
+    shared: SharedDetection | None = None
 
     def _size_prior_note(self) -> str:
         """For the start-up log: the size prior when on."""
@@ -120,7 +126,11 @@ class _DetectorPhases:
     def _declare(self) -> None:
         self.detector = None
         self.values = declare_table(self, DETECTOR_PARAMETERS, apply=self._apply_parameters)
-        self.camera = declare_camera_model(self)
+        needs_camera = (self.values["pose.source"] != "fixed" or self.values["size_prior.dimension"] != "none"
+                        or bool(self.values["appearance_model"]))
+        self.camera = declare_camera_model(self, required=needs_camera)
+        if self.camera is None:
+            self.get_logger().info("no calibration given: detecting without one (a camera not calibrated yet)")
         values = self.values
         if not (values["subscribe_compressed"] or values["subscribe_raw"]):
             raise VesselError("detector subscribes to nothing: set subscribe_compressed or subscribe_raw to true")
@@ -148,7 +158,12 @@ class _DetectorPhases:
 
     def _configure(self) -> None:
         values = self.values
-        self.detector = build_detector(values, self.camera)
+        model = None
+        if self.shared is not None:
+            key = (model_spec(values), int(values["intra_op_threads"]), str(values["layout"]),
+                   str(values["class_names_file"]))
+            model = self.shared.model(key, lambda: open_model(values))
+        self.detector = build_detector(values, self.camera, model=model)
         self.poser = frame_poser(values, self.camera)
         if self.detector.horizon_y is None:
             self.get_logger().warning("the calibration gives no horizon in the image: processing the whole height")
@@ -163,10 +178,14 @@ class _DetectorPhases:
     def _activate(self) -> None:
         values = self.values
         qos = image_qos_profile(values["image_qos"])
-        self._queue = queue = ImageQueue(int(values["images_waiting"]), _decoded)
-        self._worker = threading.Thread(target=self._work, args=(queue,), name="detector-worker", daemon=True)
-        self._worker.start()
-        if values["decode_ahead"]:
+        if self.shared is not None:  # the process's worker takes this camera's newest image in its turn
+            self._queue = ImageQueue(int(values["images_waiting"]), _decoded, on_put=self.shared.wake)
+            self.shared.join(self)
+        else:
+            self._queue = queue = ImageQueue(int(values["images_waiting"]), _decoded)
+            self._worker = threading.Thread(target=self._work, args=(queue,), name="detector-worker", daemon=True)
+            self._worker.start()
+        if values["decode_ahead"] and self.shared is None:
             self._decode_ahead_thread = threading.Thread(target=queue.decode_ahead, name="detector-decode-ahead",
                                                          daemon=True)
             self._decode_ahead_thread.start()
@@ -178,7 +197,7 @@ class _DetectorPhases:
                 Image, values["raw_topic"], lambda m: self._on_image("raw", m), qos))
         if values["pose.source"] == "own_ship":
             self._image_subscriptions.append(self.create_subscription(
-                Imu, values["pose.imu_topic"], self._on_imu, reliable_qos(200)))
+                Imu, values["pose.imu_topic"], self._on_imu, sensor_stream_qos(values["pose.imu_qos"])))
         topics = [values["compressed_topic"]] if values["subscribe_compressed"] else []
         topics += [values["raw_topic"]] if values["subscribe_raw"] else []
         config = self.detector.config
@@ -236,20 +255,29 @@ class _DetectorPhases:
         self.poser.add_attitude(stamp_to_sec(message.header.stamp), reading.attitude, reading.sigma_deg)
 
     # ------------------------------------------------------------------------------------------------ worker
+    @property
+    def queue(self) -> ImageQueue | None:
+        """The images waiting for the network (a ``detector_sharing.Member``'s queue)."""
+        return self._queue
+
     def _work(self, queue: ImageQueue) -> None:
         while True:
             item = queue.take()
             if item is None:
                 return
-            try:
-                self._process(item)
-            except ImageError as error:
-                self.health.problem(error.kind, f"bad image skipped: {error}")
-            except VesselError as error:
-                self.health.problem("detector_error", f"frame skipped: {error}")
-            except Exception as error:  # a bug must not silence the camera feed: count it and go on
-                self.health.problem("detector_error", f"frame skipped after an unexpected {type(error).__name__}: "
-                                    f"{error}")
+            self.process_safely(item)
+
+    def process_safely(self, item: QueuedImage) -> None:
+        """Detect on one image and publish; a bad image or a failure is counted, never raised."""
+        try:
+            self._process(item)
+        except ImageError as error:
+            self.health.problem(error.kind, f"bad image skipped: {error}")
+        except VesselError as error:
+            self.health.problem("detector_error", f"frame skipped: {error}")
+        except Exception as error:  # a bug must not silence the camera feed: count it and go on
+            self.health.problem("detector_error", f"frame skipped after an unexpected {type(error).__name__}: "
+                                f"{error}")
 
     def _process(self, item: QueuedImage) -> None:
         started = time.monotonic()
@@ -267,7 +295,9 @@ class _DetectorPhases:
         if not header.frame_id and self.values["frame_id"]:
             header.frame_id = self.values["frame_id"]
         out = detections_to_msg(detections, header, self.detector.config.target_class)
-        out.camera_pose = camera_pose_msg(pose, header, self.camera, self.poser.mounting.camera_from_body)
+        mounting = self.poser.mounting
+        out.camera_pose = camera_pose_msg(pose, header, self.camera,
+                                          np.eye(3) if mounting is None else mounting.camera_from_body)
         self.pose_pub.publish(out.camera_pose)
         self.detections_pub.publish(out)
         finished = time.monotonic()
@@ -319,6 +349,8 @@ class _DetectorPhases:
 
         Images still waiting are counted as dropped, so the counters balance.
         """
+        if self.shared is not None:
+            self.shared.leave(self)
         if self._queue is not None:
             dropped = self._queue.stop()
             if dropped:

@@ -110,16 +110,19 @@ DETECTION_PARAMS: tuple[Param, ...] = (
 )
 
 POSE_PARAMS: tuple[Param, ...] = (
-    Param("pose.source", "fixed", "The camera's attitude per image: fixed (the calibration's; the horizon is only "
-              "measured and published), horizon (a camera on a pole or pier that sways: pitch and roll from the "
-              "horizon measured in each image) or own_ship (a camera on a ship: the ship's attitude on imu_topic, "
-              "corrected by the horizon with use_horizon).", choices=("fixed", "horizon", "own_ship")),
+    Param("pose.source", "fixed", "The camera's attitude per image: fixed (the calibration's; the horizon is "
+              "measured only for the annotated image), horizon (a camera on a pole or pier that sways: pitch and "
+              "roll from the horizon measured in each image) or own_ship (a camera on a ship: the ship's attitude on "
+              "imu_topic, corrected by the horizon with use_horizon).", choices=("fixed", "horizon", "own_ship")),
     Param("pose.imu_topic", "/own_ship/imu", "The ship's attitude (sensor_msgs/Imu orientation, REP-103/145: ENU, "
               "body x forward, z up). A compass alone: the heading in the orientation and -1 in "
               "orientation_covariance[0] and [4] (roll, pitch not measured)."),
+    Param("pose.imu_qos", "reliable", "QoS of the attitude subscription: reliable (loses nothing; a replay's "
+              "camera node publishes reliably) or sensor_data (best effort: for a driver that publishes best "
+              "effort, which a reliable reader does not hear).", choices=("reliable", "sensor_data")),
     Param("pose.max_age_s", 0.5, "An image whose stamp is further than this from the ship's attitude samples "
               "around it gets no pose (counted as stale_pose): no positions are made from it.",
-              value_range=(0.001, 60.0)),
+              value_range=(0.001, 15.0)),
     Param("pose.wait_s", 0.2, "How long an image waits for an attitude sample stamped after it (so the "
               "attitude is interpolated, not held).", value_range=(0.0, 5.0)),
     Param("pose.use_horizon", True, "Measure the sea's far edge in each image and, with source horizon or "
@@ -133,7 +136,7 @@ POSE_PARAMS: tuple[Param, ...] = (
     Param("pose.gate_sigmas", 5.0, "A horizon further than this many standard deviations from the "
               "bias-corrected sensor is taken for a wrong edge and not used (counted).", value_range=(1.0, 100.0),
           live=True),
-    Param("pose.topic", "/vessel/camera_pose", "vessel_msgs/CameraPose output: the attitude used for each image "
+    Param("pose.topic", "vessel/camera_pose", "vessel_msgs/CameraPose output: the attitude used for each image "
               "and the horizon measured in it."),
     Param("exclusion_polygons_frame", "reference", "What the exclusion masks are fixed to: reference (the world "
               "seen at the calibration's attitude, e.g. a mooring post: they move with the camera's pose) or "
@@ -141,8 +144,8 @@ POSE_PARAMS: tuple[Param, ...] = (
 )
 
 NODE_PARAMS: tuple[Param, ...] = (
-    Param("compressed_topic", "/camera/image_raw/compressed", "CompressedImage input topic."),
-    Param("raw_topic", "/camera/image_raw", "Image input topic."),
+    Param("compressed_topic", "camera/image_raw/compressed", "CompressedImage input topic."),
+    Param("raw_topic", "camera/image_raw", "Image input topic."),
     Param("subscribe_compressed", True, "Subscribe to compressed_topic."),
     Param("subscribe_raw", False, "Subscribe to raw_topic."),
     Param("image_qos", "sensor_data", "QoS of the image subscriptions: sensor_data (best effort) or "
@@ -154,10 +157,10 @@ NODE_PARAMS: tuple[Param, ...] = (
     Param("decode_ahead", True, "Decode the next waiting image in a second thread while the network runs on "
               "the current one (at most one ahead per processed image); false: the worker decodes each image "
               "itself, one thread."),
-    Param("detections_topic", "/vessel/detections", "Detection2DArray output topic (reliable)."),
+    Param("detections_topic", "vessel/detections", "Detection2DArray output topic (reliable)."),
     Param("detections_qos_depth", 10, "History depth of the detections publisher.", value_range=(1, 1000)),
     Param("publish_annotated", False, "Publish the annotated image (boxes, scores, band, masks)."),
-    Param("annotated_topic", "/vessel/detections/image", "Annotated image topic (Image, bgr8)."),
+    Param("annotated_topic", "vessel/detections/image", "Annotated image topic (Image, bgr8)."),
     Param("annotated_scale", 0.5, "Scale of the annotated image (0.5: half resolution, lighter to send).",
               value_range=(0.05, 1.0)),
     Param("frame_id", "", "frame_id for the output header when the image's is empty ('' : keep it)."),
@@ -316,10 +319,12 @@ def attitude_settings(values: Mapping[str, Any]) -> AttitudeSettings:
 
 def frame_poser(values: Mapping[str, Any], camera_model) -> FramePoser:
     """The poser of each image from the parameters and the calibration (which a moving camera needs)."""
-    if camera_model is None:
-        raise ModelError("pose.* needs the calibration: load it with --params-file config/aitas_camera.yaml")
-    return FramePoser(camera_model, attitude_settings(values), float(values["pose.max_age_s"]),
-                      float(values["pose.wait_s"]), bool(values["pose.use_horizon"]))
+    if camera_model is None and str(values["pose.source"]) != "fixed":
+        raise ModelError(f"pose.source {values['pose.source']} needs the calibration: load it with --params-file "
+                         "config/aitas_camera.yaml")
+    settings = attitude_settings(values)
+    measure = bool(values["pose.use_horizon"]) and (settings.source != "fixed" or bool(values["publish_annotated"]))
+    return FramePoser(camera_model, settings, float(values["pose.max_age_s"]), float(values["pose.wait_s"]), measure)
 
 
 def load_params_file(path: str | Path | None, node_name: str = NODE_NAME) -> tuple[dict[str, Any], Any]:

@@ -15,15 +15,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vessel_calib.attitude import SOURCE_OWN_SHIP, AttitudeEstimator, AttitudeSettings, MeasuredLine, PoseEstimate
+from vessel_calib.attitude import (
+    SOURCE_FIXED,
+    SOURCE_OWN_SHIP,
+    AttitudeEstimator,
+    AttitudeSettings,
+    MeasuredLine,
+    PoseEstimate,
+)
 from vessel_calib.camera_pose import CameraMounting
 from vessel_calib.own_ship import OwnShipBuffer, ShipAttitude
+from vessel_common.errors import VesselError
 from vessel_detect.horizon import FarEdge, FarEdgeFinder
 from vessel_detect.image_view import ImageView
 
 WIDE_SEARCH_PX = 110.0
 """Half-height searched for the horizon when nothing predicts it well (a compass alone, the horizon source)."""
 SENSOR_SEARCH_PX = 30.0
+STREAM_SILENT_S = 2.0
+"""Wall-clock seconds without an attitude sample after which images stop waiting for one (the sensor is gone)."""
 """Half-height searched around the line the bias-corrected attitude sensor predicts."""
 
 
@@ -48,24 +58,36 @@ class FramePoser:
     def __init__(self, camera, settings: AttitudeSettings, max_age_s: float, wait_s: float,
                  measure_horizon: bool = True):
         self.camera = camera
-        self.mounting = CameraMounting.from_camera(camera, camera.reference_attitude_deg)
-        self.estimator = AttitudeEstimator(self.mounting, camera.far_edge_line(), settings)
         self.settings = settings
         self.wait_s = float(wait_s)
+        self.max_age_s = float(max_age_s)
         self.finder = FarEdgeFinder() if measure_horizon else None
-        self._buffer = OwnShipBuffer(max_age_s=float(max_age_s))
+        self.mounting = self.estimator = None
+        if settings.source != "fixed":  # a fixed camera needs no pinhole decomposition of its H
+            self.mounting = CameraMounting.from_camera(camera, camera.reference_attitude_deg)
+            self.estimator = AttitudeEstimator(self.mounting, camera.far_edge_line(), settings)
+        self._buffer = OwnShipBuffer(max_age_s=self.max_age_s, horizon_s=max(30.0, 2.0 * self.max_age_s))
         self._changed = threading.Condition()
         self._newest = -np.inf
+        self._arrived = -np.inf
+        self._last_image = -np.inf
 
     def add_attitude(self, stamp: float, attitude: ShipAttitude, sigma_deg: float = float("nan")) -> None:
         """A sample of the ship's attitude (from the executor thread)."""
         with self._changed:
+            resets = self._buffer.resets
             self._buffer.add_attitude(stamp, attitude, sigma_deg)
-            self._newest = max(self._newest, stamp)
+            self._newest = stamp if self._buffer.resets != resets else max(self._newest, stamp)
+            self._arrived = time.monotonic()
             self._changed.notify_all()
 
     def pose_of(self, stamp: float, bgr: np.ndarray) -> ImagePose:
         """The pose of the image stamped ``stamp`` whose pixels are ``bgr`` (from the worker thread)."""
+        if self.settings.source == "fixed":
+            return self._fixed_pose(bgr)
+        if stamp < self._last_image - 1.0:  # a replay restarted: the sensor's bias is learnt again
+            self.estimator = AttitudeEstimator(self.mounting, self.camera.far_edge_line(), self.settings)
+        self._last_image = stamp
         sensor, problem = self._sensor_at(stamp)
         if self.settings.source == "own_ship" and sensor is None:
             estimate = PoseEstimate(False, SOURCE_OWN_SHIP, problem=problem)
@@ -89,12 +111,29 @@ class FramePoser:
                                  edge.abc if edge is not None and edge.found else None, tuple(expected))
         return ImagePose(estimate, view, edge, kind)
 
+    def _fixed_pose(self, bgr: np.ndarray) -> ImagePose:
+        """A fixed camera: the calibration's pose, and the horizon measured where it is asked for (published)."""
+        heading = float(self.camera.heading_deg) if self.camera is not None else float("nan")
+        estimate = PoseEstimate(True, SOURCE_FIXED, heading, 0.0, 0.0, np.zeros((3, 3)), np.eye(3))
+        if self.camera is None:  # no calibration (a camera not calibrated yet): no horizon to draw either
+            return ImagePose(estimate, None, None)
+        edge = None
+        if self.finder is not None:
+            try:
+                edge = self._measure(bgr, np.asarray(self.camera.far_edge_line()), WIDE_SEARCH_PX)
+            except VesselError:  # a calibration with no horizon to search about: nothing to measure
+                edge = None
+        view = ImageView.of_pose(self.camera, np.eye(3), edge.abc if edge is not None and edge.found else None)
+        return ImagePose(estimate, view, edge)
+
     def _sensor_at(self, stamp: float) -> tuple[tuple | None, str]:
         if self.settings.source != "own_ship":
             return None, ""
         deadline = time.monotonic() + self.wait_s
         with self._changed:
-            while self._newest < stamp and time.monotonic() < deadline:
+            silent = time.monotonic() - self._arrived  # inf before the first sample: the first images wait
+            alive = silent < STREAM_SILENT_S or self._arrived == -np.inf  # a stream gone silent is not waited for
+            while alive and self._newest < stamp and time.monotonic() < deadline:
                 self._changed.wait(timeout=max(0.0, deadline - time.monotonic()))
             lookup = self._buffer.attitude_at(stamp)
         if not lookup.ok:

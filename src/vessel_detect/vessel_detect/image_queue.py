@@ -64,11 +64,13 @@ class QueuedImage:
 class ImageQueue:
     """At most ``capacity`` images waiting, oldest dropped first; see the module docstring."""
 
-    def __init__(self, capacity: int, decode: Callable[[str, Any], Any]) -> None:
+    def __init__(self, capacity: int, decode: Callable[[str, Any], Any],
+                 on_put: Callable[[], None] | None = None) -> None:
         if capacity < 1:
             raise ValueError(f"an image queue holds at least one image, got capacity {capacity}")
         self.capacity = capacity
         self._decode = decode
+        self._on_put = on_put  # wakes a worker that serves several queues (``detector_sharing``)
         self._lock = threading.Condition()
         self._waiting: deque[QueuedImage] = deque()
         self._stopped = False
@@ -85,7 +87,9 @@ class ImageQueue:
                 dropped += 1
             self._waiting.append(QueuedImage(kind, message, received, self._decode))
             self._lock.notify_all()
-            return dropped
+        if self._on_put is not None:
+            self._on_put()
+        return dropped
 
     def take(self) -> QueuedImage | None:
         """The oldest waiting image, waiting for one; None once stopped. Allows one more decode ahead."""
@@ -93,6 +97,18 @@ class ImageQueue:
             while not self._waiting and not self._stopped:
                 self._lock.wait(0.5)
             if self._stopped:
+                return None
+            image = self._waiting.popleft()
+            if image.state == WAITING:
+                image.state = TAKEN
+            self._ahead_allowed = True
+            self._lock.notify_all()
+            return image
+
+    def take_nowait(self) -> QueuedImage | None:
+        """The oldest waiting image, or None at once when there is none (or once stopped)."""
+        with self._lock:
+            if self._stopped or not self._waiting:
                 return None
             image = self._waiting.popleft()
             if image.state == WAITING:

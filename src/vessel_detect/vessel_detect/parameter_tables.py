@@ -35,9 +35,10 @@ CAMERA_PARAMETERS = ParameterTable("camera", CAMERA_TITLE, (
     Param("start_offset_s", 0.0, "Start this many seconds after the source's first frame.", value_range=(0.0, 1.0e6)),
     Param("publish_compressed", True, "Publish sensor_msgs/CompressedImage (JPEG as stored; others encoded)."),
     Param("publish_raw", False, "Publish sensor_msgs/Image (bgr8); decoding costs CPU, use for in-process use."),
-    Param("image_topic", IMAGE_TOPIC, "Image topic read from a bag (CompressedImage)."),
-    Param("compressed_topic", IMAGE_TOPIC, "Topic of the published CompressedImage."),
-    Param("raw_topic", "/camera/image_raw", "Topic of the published raw Image."),
+    Param("image_topic", IMAGE_TOPIC, "Image topic read from a bag (CompressedImage). The topics read from a bag "
+          "are its names as recorded: a relative topic parameter (camera/fix) reads /camera/fix."),
+    Param("compressed_topic", IMAGE_TOPIC.lstrip("/"), "Topic of the published CompressedImage."),
+    Param("raw_topic", "camera/image_raw", "Topic of the published raw Image."),
     Param("image_qos", "sensor_data", "QoS of the image topics: sensor_data (best effort, keep last 5) or reliable "
           "(keep last 10; a reliable subscriber needs it).", choices=IMAGE_QOS_CHOICES),
     Param("frame_id", "camera", "frame_id of images from sources that carry none (video, folder, device)."),
@@ -48,8 +49,8 @@ CAMERA_PARAMETERS = ParameterTable("camera", CAMERA_TITLE, (
     Param("clock_rate_hz", 50.0, "How often /clock advances between frames (wall clock), at rate > 0.",
           value_range=(1.0, 1000.0), live=True),
     Param("republish", True, "Republish the camera fix, GPS truth and own-ship topics recorded in a bag."),
-    Param("camera_fix_topic", CAMERA_FIX_TOPIC, "Camera position topic (NavSatFix, latched)."),
-    Param("gps_truth_topic", GPS_TRUTH_TOPIC, "Vessel GPS ground truth topic (NavSatFix)."),
+    Param("camera_fix_topic", CAMERA_FIX_TOPIC.lstrip("/"), "Camera position topic (NavSatFix, latched)."),
+    Param("gps_truth_topic", GPS_TRUTH_TOPIC.lstrip("/"), "Vessel GPS ground truth topic (NavSatFix)."),
     Param("own_ship_fix_topic", OWN_SHIP_FIX_TOPIC, "Position of the ship the camera is on (NavSatFix), republished "
           "from a bag that has it."),
     Param("own_ship_imu_topic", OWN_SHIP_IMU_TOPIC, "Attitude of the ship the camera is on (Imu, REP-103, frame "
@@ -66,7 +67,7 @@ CAMERA_PARAMETERS = ParameterTable("camera", CAMERA_TITLE, (
           "own frame times), requested from a device (0 = its default).", value_range=(0.0, 1000.0)),
     Param("device_width", 0, "Requested device image width (0 = the device's default).", value_range=(0, 10000)),
     Param("device_height", 0, "Requested device image height (0 = the device's default).", value_range=(0, 10000)),
-    Param("ack_topic", "/vessel/detections", "At rate 0: the detector output whose arrival releases the next frame "
+    Param("ack_topic", "vessel/detections", "At rate 0: the detector output whose arrival releases the next frame "
           "(vessel_msgs/Detection2DArray with the image's stamp)."),
     Param("ack_type", DETECTION_2D_ARRAY, "At rate 0: message type of ack_topic, any with a header (e.g. "
           "vessel_msgs/msg/VesselTrackArray to pace on the fuser's /vessel/tracks)."),
@@ -104,22 +105,23 @@ camera refuses it), and what the replay reads per frame or at its end: ``jpeg_qu
 ``ack_timeout_s``, ``frames_in_flight``, ``drop_late``, ``max_lag_s``, ``max_frames``, ``end_linger_s``."""
 
 RECORDER_DEFAULT_TOPICS = (
-    "/vessel/detections:vessel_msgs/msg/Detection2DArray",
-    "/vessel/tracks/screen:vessel_msgs/msg/VesselTrackArray",
-    "/vessel/tracks:vessel_msgs/msg/VesselTrackArray",
-    "/vessel/fix:sensor_msgs/msg/NavSatFix",
-    "/vessel/fixes",
-    "/vessel/gps_truth:sensor_msgs/msg/NavSatFix",
-    "/camera/fix:sensor_msgs/msg/NavSatFix",
+    "vessel/detections:vessel_msgs/msg/Detection2DArray",
+    "vessel/tracks/screen:vessel_msgs/msg/VesselTrackArray",
+    "vessel/tracks:vessel_msgs/msg/VesselTrackArray",
+    "vessel/fix:sensor_msgs/msg/NavSatFix",
+    "vessel/fixes",
+    "vessel/gps_truth:sensor_msgs/msg/NavSatFix",
+    "camera/fix:sensor_msgs/msg/NavSatFix",
     "/diagnostics:diagnostic_msgs/msg/DiagnosticArray",
 )
-"""The graph's outputs; `/vessel/fixes` takes its type from the graph (it depends on the GPS publisher's mode)."""
+"""The graph's outputs; `vessel/fixes` takes its type from the graph (it depends on the GPS publisher's mode)."""
 
 RECORDER_PARAMETERS = ParameterTable("recorder", "Recorder node (vessel_detect recorder): writes the graph's outputs "
                                      "to a rosbag2 MCAP folder; SIGINT closes it.", (
     Param("output", "", "Bag folder to create (default: rosbag2_<UTC date-time> in the working directory)."),
-    Param("topics", RECORDER_DEFAULT_TOPICS, "Topics to record, each '/name' (type from the graph) or "
-          "'/name:pkg/msg/Type'."),
+    Param("topics", RECORDER_DEFAULT_TOPICS, "Topics to record, each 'name' (type from the graph) or "
+          "'name:pkg/msg/Type'; a relative name is the graph's own under its namespace and is written into the "
+          "bag without it (/a/vessel/fix as /vessel/fix), so a camera in any namespace can replay it."),
     Param("overwrite", False, "Replace an existing bag at 'output'."),
     Param("discovery_period_s", 0.5, "How often to look for publishers of topics not yet subscribed.",
           value_range=(0.05, 60.0)),
@@ -147,13 +149,14 @@ REPLAY_DETECTOR_PARAMETERS = ParameterTable("detector", "Replay detector (vessel
           value_range=(0.0, 10.0), live=True),
     Param("pace", "images", "'images': one array per received image; 'self': one array per CSV stamp, paced by "
           "ack_topic, no camera needed", choices=PACE_CHOICES),
-    Param("compressed_topic", IMAGE_TOPIC, "CompressedImage topic to follow ('' to not subscribe; pace images)"),
+    Param("compressed_topic", IMAGE_TOPIC.lstrip("/"), "CompressedImage topic to follow ('' to not subscribe; pace "
+          "images)"),
     Param("image_topic", "", "Image topic to follow ('' to not subscribe)"),
     Param("image_qos", "sensor_data", "QoS of the image subscriptions: sensor_data (best effort) or reliable (with a "
           "camera publishing reliably, no image is lost when the replay answers faster than a detector would)",
           choices=IMAGE_QOS_CHOICES),
-    Param("detections_topic", "/vessel/detections", "Detection2DArray output"),
-    Param("ack_topic", "/vessel/tracks/screen", "pace self: the next array goes when a VesselTrackArray with the "
+    Param("detections_topic", "vessel/detections", "Detection2DArray output"),
+    Param("ack_topic", "vessel/tracks/screen", "pace self: the next array goes when a VesselTrackArray with the "
           "previous stamp arrives here"),
     Param("ack_timeout_s", 5.0, "pace self: or after this long, s", value_range=(0.01, 600.0), live=True),
     Param("frame_id", "camera", "pace self: header frame_id"),

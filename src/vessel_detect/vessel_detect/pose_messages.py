@@ -38,10 +38,11 @@ def camera_pose_msg(pose, header, camera, camera_from_body) -> CameraPose:
     msg.attitude_covariance = [_finite(v) for v in covariance.ravel()]
     R = np.asarray(camera_from_body, dtype=float)  # body x, y, z: roll, pitch, heading axes (small tilts)
     msg.camera_rotation_covariance = [_finite(v) for v in (R @ np.nan_to_num(covariance) @ R.T).ravel() * RAD2]
-    msg.image_to_reference = [float(v) for v in np.asarray(estimate.image_to_reference, dtype=float).ravel()]
-    msg.focal_px = float(camera.pinhole().focal_px) if estimate.source > 1 else 0.0
-    msg.lens_k1 = float(camera.K1)
-    msg.lens_center.x, msg.lens_center.y = (float(v) for v in camera.center)
+    msg.image_to_reference = [_finite(v) for v in np.asarray(estimate.image_to_reference, dtype=float).ravel()]
+    msg.focal_px = float(camera.pinhole().focal_px) if estimate.source > 1 and camera is not None else 0.0
+    if camera is not None:
+        msg.lens_k1 = float(camera.K1)
+        msg.lens_center.x, msg.lens_center.y = (float(v) for v in camera.center)
     edge = pose.edge
     if edge is not None and edge.found:
         msg.horizon_found = True

@@ -3,8 +3,9 @@
 It is a `ros2 bag record` for installs without the rosbag2 tools, writing the same format. Each topic is
 subscribed once a publisher appears, with QoS adapted to what the publishers offer (so best-effort and latched
 topics are recorded too) and the type taken from the parameter or from the graph. Messages are stored as
-received (serialised CDR, no decode); the log time is the message's header stamp where it has one (so a replayed
-bag lines up with its source), else the receive time on the node's clock (sim time under `use_sim_time`). A
+received (serialised CDR, no decode; ``/diagnostics`` only of its own graph's nodes); the log time is the
+message's header stamp where it has one (so a replayed bag lines up with its source), else the receive time on the
+node's clock (sim time under `use_sim_time`). A
 message with no time yet (an unset stamp before the first `/clock` of a replay) is written at the next known
 time, never at 1970, so a recording of a replay spans the replay's time only. On
 SIGINT/SIGTERM the bag is closed properly: index, summary and metadata.yaml written, nothing received is lost.
@@ -14,7 +15,7 @@ the bag its predecessor left: it records into the next part beside it, ``OUTPUT.
 part stays as it is: ``./vessel bag recover OUTPUT`` makes it readable; ``resume_files.recording_parts`` lists them).
 
     ros2 run vessel_detect recorder --ros-args -p output:=out/run1 \
-        -p topics:="['/vessel/fix', '/vessel/tracks:vessel_msgs/msg/VesselTrackArray']"
+        -p topics:="['vessel/fix', 'vessel/tracks:vessel_msgs/msg/VesselTrackArray']"
 """
 
 from __future__ import annotations
@@ -30,10 +31,11 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vessel_common.errors import DataError, VesselError
+from vessel_common.graph_names import file_label, node_graph
 from vessel_common.health import NodeHealth, steady_timer
 from vessel_common.node_parameters import declare_table
 from vessel_common.run import main_for
-from vessel_detect import bag_messages, bag_writer
+from vessel_detect import bag_messages, bag_topics, bag_writer
 from vessel_detect.parameter_tables import RECORDER_DEFAULT_TOPICS, RECORDER_PARAMETERS
 from vessel_detect.resume_files import (
     ResumeFileError,
@@ -45,7 +47,7 @@ from vessel_detect.resume_files import (
 from vessel_detect.ros_messages import message_class
 
 DEFAULT_TOPICS = list(RECORDER_DEFAULT_TOPICS)
-"""The graph's outputs; `/vessel/fixes` takes its type from the graph (it depends on the GPS publisher's mode)."""
+"""The graph's outputs; `vessel/fixes` takes its type from the graph (it depends on the GPS publisher's mode)."""
 
 _NS_PER_S = 1_000_000_000
 _CDR_LITTLE_ENDIAN = (b"\x00\x01", b"\x00\x03")  # CDR_LE, PL_CDR_LE encapsulation ids
@@ -61,13 +63,18 @@ class TopicPlan:
     subscribed: bool = False
     count: int = 0
 
+    @property
+    def bag_name(self) -> str:
+        """The topic's name in the bag: a relative one without the graph's namespace (``bag_topics.in_bag``)."""
+        return bag_topics.in_bag(self.name)
+
 
 def parse_topic_entry(entry: str) -> TopicPlan:
-    """`/name` or `/name:pkg/msg/Type` (or `pkg/Type`) -> TopicPlan."""
+    """`name` or `name:pkg/msg/Type` (or `pkg/Type`) -> TopicPlan; a name absolute (/diagnostics) or relative."""
     name, _, msgtype = entry.strip().partition(":")
     name = name.strip()
-    if not name.startswith("/") or " " in name:
-        raise DataError(f"topic entry {entry!r}: the topic must be an absolute name like /vessel/fix")
+    if not name.strip("/") or " " in name or name.startswith("~"):
+        raise DataError(f"topic entry {entry!r}: the topic must be a name like vessel/fix or /diagnostics")
     return TopicPlan(name, bag_messages.normalise_msgtype(msgtype) if msgtype.strip() else "")
 
 
@@ -105,6 +112,7 @@ class RecorderNode(Node):
             raise DataError("parameter 'topics' is empty: name at least one topic to record")
         self.resume_file = Path(values["resume_file"]).expanduser() if values["resume_file"] else None
         self.health = NodeHealth(self, hardware_id="recorder")
+        self.graph = node_graph(self.get_namespace())
         self.health.count("messages", 0)
         self.output, earlier = self._output_of(output)
         self.health.set_value("output", str(self.output))
@@ -143,7 +151,8 @@ class RecorderNode(Node):
                 "recover` makes one that was not closed readable)")
             return continued, earlier
         if not output:
-            output = f"rosbag2_{datetime.now(tz=UTC).strftime('%Y_%m_%d-%H_%M_%S')}"
+            graph = file_label(self.graph)  # two cameras' recorders never share a bag
+            output = f"rosbag2_{graph + '_' if graph else ''}{datetime.now(tz=UTC).strftime('%Y_%m_%d-%H_%M_%S')}"
         return Path(output).expanduser(), []
 
     def _note_parts(self) -> None:
@@ -187,7 +196,7 @@ class RecorderNode(Node):
             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
         )
         self.writer.add_topic(
-            plan.name, plan.msgtype, "latched" if latched else ("reliable" if reliable else "sensor_data")
+            plan.bag_name, plan.msgtype, "latched" if latched else ("reliable" if reliable else "sensor_data")
         )
         plan.has_header = starts_with_header(plan.msgtype)
         self.create_subscription(
@@ -201,7 +210,7 @@ class RecorderNode(Node):
 
     # ------------------------------------------------------------------------------------------------ messages
     def _on_message(self, plan: TopicPlan, cdr: bytes) -> None:
-        if self._closed:
+        if self._closed or (plan.msgtype == bag_topics.DIAGNOSTIC_ARRAY and not self._own_diagnostics(cdr)):
             return
         log_ns = header_stamp_ns(cdr) if plan.has_header else None
         if log_ns is None:
@@ -218,9 +227,24 @@ class RecorderNode(Node):
         self._untimed.clear()
         self._write(plan, cdr, log_ns)
 
+    def _own_diagnostics(self, cdr: bytes) -> bool:
+        """Whether a ``/diagnostics`` message reports a node of this recorder's graph (hot standbys included).
+
+        ``/diagnostics`` is one topic for the whole domain: another camera's graph reports there too, in its own
+        replay's time, and would spread this recording over that time.
+        """
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.serialization import deserialize_message
+
+        try:
+            statuses = deserialize_message(cdr, DiagnosticArray).status
+        except Exception:  # a damaged message: recorded as it came, like any other topic's
+            return True
+        return not statuses or any(node_graph(status.name.rpartition("/")[0]) == self.graph for status in statuses)
+
     def _write(self, plan: TopicPlan, cdr: bytes, log_ns: int) -> None:
         try:
-            self.writer.write_cdr(plan.name, cdr, log_ns)
+            self.writer.write_cdr(plan.bag_name, cdr, log_ns)
         except VesselError as error:
             self.health.problem("write_failed", f"cannot write a message of {plan.name}: {error}")
             return

@@ -11,7 +11,7 @@ import pytest
 from vessel_calib.own_ship import attitude_reading
 from vessel_detect import bag_messages, bag_reader, bag_topics
 from vessel_fixtures import detect_synthetic as synthetic
-from vessel_tools.detect import bag_build
+from vessel_tools.detect import bag_build, own_ship_bag
 
 DAY0 = math.floor(synthetic.START_UTC / 86400.0) * 86400.0
 
@@ -57,7 +57,8 @@ def read_own_ship(path):
         for message in reader.messages([bag_topics.DEFAULT_OWN_SHIP_FIX_TOPIC, bag_topics.DEFAULT_OWN_SHIP_IMU_TOPIC]):
             decoded = reader.decode(message)
             stamp = bag_messages.ns_of_stamp(decoded.header.stamp)
-            assert stamp == message.log_time_ns and decoded.header.frame_id == "base_link"
+            # logged ahead of their stamps, so a replay hands each image the samples after it (own_ship_bag.LEAD_NS)
+            assert stamp - message.log_time_ns == own_ship_bag.LEAD_NS and decoded.header.frame_id == "base_link"
             if message.msgtype == bag_topics.IMU:
                 q = decoded.orientation
                 imus.append((stamp, attitude_reading((q.x, q.y, q.z, q.w), list(decoded.orientation_covariance))))

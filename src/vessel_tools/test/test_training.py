@@ -186,6 +186,15 @@ def test_the_scale_range_option_is_checked_and_defaults_to_the_augmentation_defa
             _scale_range(wrong)
 
 
+def test_the_webcam_options_are_checked_before_any_work(tmp_path):
+    _train_is_refused(["--webcam-scale-range", "3,1"], "--webcam-scale-range 3,1")
+    _webcam_folder(tmp_path)
+    from vessel_tools.detect.training.webcams import load_webcams
+
+    with pytest.raises(DataError, match="no images"):
+        load_webcams(tmp_path / "images", set())
+
+
 def test_the_colour_jitter_option_is_checked_and_defaults_to_the_augmentation_default():
     from vessel_tools.detect.training.train_cli import _colour_jitter
 
@@ -393,3 +402,47 @@ def test_training_without_labels_is_refused(tiny_onnx):
 
     with pytest.raises(DataError, match="no training frames"):
         train(tiny_onnx, [], {}, None, _smoke_settings(), log=lambda m: None)
+
+
+def _webcam_folder(root: Path) -> None:
+    """A Shore Livecams-like folder: two webcams, train and test splits, boats (class 2) and a person (0)."""
+    import cv2
+
+    for split, cams in (("train", ("camA", "camB")), ("test", ("camA",))):
+        (root / "images" / split).mkdir(parents=True)
+        (root / "labels" / split).mkdir(parents=True)
+        for i, cam in enumerate(cams):
+            image = np.full((180, 320, 3), (100, 90, 70), np.uint8)
+            image[80:88, 40 + 30 * i : 52 + 30 * i] = 255
+            cv2.imwrite(str(root / "images" / split / f"{cam}_{i}.jpg"), image)
+            (root / "labels" / split / f"{cam}_{i}.txt").write_text(
+                f"2 {(46 + 30 * i) / 320:.5f} {84 / 180:.5f} {12 / 320:.5f} {8 / 180:.5f}\n0 0.5 0.5 0.1 0.1\n")
+
+
+def test_webcam_images_become_vessel_boxes_and_held_out_webcams_are_left_out(tmp_path):
+    from vessel_tools.detect.training.webcams import WEBCAM_SOURCE, load_webcams, webcam_sample
+
+    _webcam_folder(tmp_path)
+    labels, images, counts = load_webcams(tmp_path, {"camB"})
+    assert counts == {"camA": 2} and all(lab.target_source == WEBCAM_SOURCE for lab in labels)
+    assert all(len(lab.boxes) == 1 and lab.classes.tolist() == [OTHER_CLASS] and lab.video < 0 for lab in labels)
+    assert labels[0].boxes[0] == pytest.approx([40, 80, 52, 88], abs=0.1)
+    rng = np.random.default_rng(0)
+    sample = webcam_sample(images[(labels[0].video, labels[0].frame)], labels[0], rng, AugmentSettings())
+    assert sample.image.shape == (3, 352, 640) and set(sample.classes.tolist()) <= {OTHER_CLASS}
+    with pytest.raises(DataError, match="no such webcam"):
+        load_webcams(tmp_path, {"camZ"})
+
+
+def test_smoke_training_with_webcam_images(tiny_onnx, tmp_path):
+    from vessel_tools.detect.training.trainer import train
+    from vessel_tools.detect.training.webcams import load_webcams
+
+    _webcam_folder(tmp_path)
+    images, labels = _synthetic_set(2)
+    webcam_labels, webcam_images, _ = load_webcams(tmp_path, set())
+    images.update(webcam_images)
+    settings = replace(_smoke_settings(), epochs=1)
+    model, result = train(tiny_onnx, labels + webcam_labels, images, None, settings, log=lambda m: None)
+    assert len(result.history) == 1 and math.isfinite(result.history[0]["loss"])
+    assert result.history[0]["foreground_per_image"] > 0

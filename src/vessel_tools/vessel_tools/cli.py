@@ -39,7 +39,8 @@ TOOLS: dict[str, Tool | Group] = {
     "results": Tool("vessel_tools.results_page", "the results page (docs/results.md) written from a demo's "
                     "summary.json", "out/demo/summary.json --out docs/results.md"),
     "graph": Tool("vessel_bringup.graph", "start the node graph as processes, what vessel_graph.launch.py does",
-                  "[--source BAG|VIDEO|DIR|device:N] [--rate R] [--nodes LIST] [--respawn] [--record BAG]"),
+                  "[--source BAG|VIDEO|DIR|device:N] [--rate R] [--nodes LIST] [--respawn] [--record BAG] "
+                  "[--namespace NAME | --cameras cam0=SRC,cam1=SRC [--processes per-node|per-role]]"),
     "view": Tool("vessel_tools.view.app", "a live web page of the water (plan, camera image, status) and the same "
                  "data for Foxglove; starts the graph on --source first", "[--port 8080] [--source BAG --rate R] "
                  "[--foxglove-port 8765] [--chart FILE.json]"),
@@ -61,14 +62,17 @@ TOOLS: dict[str, Tool | Group] = {
         "recover": Tool("vessel_tools.detect.bag_build", "make a bag whose recorder died (or that was cut short) "
                         "readable", "BAG [--out NEW]", ("--recover",)),
     }),
-    "detect": Tool("vessel_tools.detect.detect_cli", "the detector over a dataset folder; its recall; training labels "
-                   "generated from the GPS; fine-tune the detector on them; rank against the GPS",
-                   "run|recall|rank|export-labels|train ..."),
+    "detect": Tool("vessel_tools.detect.detect_cli", "the detector over a dataset folder or any camera's images; its "
+                   "recall or scores against YOLO labels; training labels generated from the GPS; fine-tune the "
+                   "detector; rank against the GPS", "run|recall|rank|export-labels|train|images|score-images ..."),
     "bench": Group({
         "graph": Tool("vessel_tools.bench", "the whole graph's frames/s and latency against the detector core",
                       "[--out FILE.json]"),
         "detector": Tool("vessel_tools.bench_detector", "the detector core and node: ms per frame, frames/s, "
                          "against the COCO tiled set-up", "[--out FILE.json]"),
+        "cameras": Tool("vessel_tools.bench_cameras", "N cameras at F frames/s each on this computer: frames "
+                        "offered and processed, latency, memory and CPU per camera and in all; --kill one camera",
+                        "--cameras N|1,2,4,8 [--fps 2] [--minutes 1] [--processes per-node] [--out F.json]"),
         "live": Tool("vessel_tools.bench_live", "the graph on a stream at the camera's frame rate: frames offered, "
                      "processed, dropped; latency; memory of every node", "[--minutes 10] [--fps 25] [--out F]"),
         "restart": Tool("vessel_tools.bench_restart", "kill -9 one node of `graph --respawn`: time to the next "

@@ -161,12 +161,13 @@ def prepare_calibration(dataset: Dataset, calib: Path | None, out: Path, water_l
 
 
 def own_ship_params(dataset: Dataset, out: Path) -> Path | None:
-    """For a dataset with ``own_ship.csv`` (a camera on a ship): the detector poses each image from the ship's attitude
-    and the fuser places the camera at the ship's position.
+    """The parameters of a camera on a ship, for a dataset with ``own_ship.csv``; None for a fixed camera.
+
+    The detector poses each image from the ship's attitude and the fuser places the camera at the ship's position.
 
     The dataset's ``reference_attitude`` (the ship's attitude at which its calibration holds) goes in as the
     calibration's ``camera.reference_attitude_deg``, listed before the calibration file so that a calibration
-    which records its own mounting wins. None for a fixed camera.
+    which records its own mounting wins.
     """
     if dataset.own_ship() is None:
         return None

@@ -194,7 +194,9 @@ def test_a_standby_tracker_publishes_only_once_promoted(start_node, driver, ask_
     from vessel_track.tracker_config import TrackerConfig
 
     tracker = start_node("vessel_track", "tracker", "--ros-args", "--params-file", str(PARAMS),
-                         "-r", "__ns:=/standby_1", "-p", "standby:=true")
+                         "-r", "__ns:=/standby_1", "-p", "standby:=true",
+                         # a spare's topics are its active node's (the graph runner's standby_topics)
+                         "-p", "input_topic:=/vessel/detections", "-p", "output_topic:=/vessel/tracks/screen")
     node, spin_until = driver
     received: list = []
     publisher = node.create_publisher(Detection2DArray, "/vessel/detections", reliable_qos(10))

@@ -41,7 +41,7 @@ from vessel_common.errors import VesselError
 from vessel_common.health import NodeHealth
 from vessel_common.node_parameters import declare_table
 from vessel_common.node_state import NodeState, Standby
-from vessel_common.qos import SENSOR_DATA_QOS, reliable_qos, stamp_to_sec
+from vessel_common.qos import reliable_qos, sensor_stream_qos, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
@@ -257,16 +257,13 @@ class FuserNode(Node):
                 "; fixed camera (own ship at rest)"))
 
     def _subscribe_own_ship(self, values: dict) -> OwnShipTrack | None:
-        """The own ship's fixes from ``own_ship_fix_topic`` (None without one: a fixed camera).
-
-        Best effort, as GPS drivers publish: a best-effort reader matches a reliable writer too, not the reverse.
-        """
+        """The own ship's fixes from ``own_ship_fix_topic`` (None without one: a fixed camera), QoS ``own_ship_qos``."""
         topic = values["own_ship_fix_topic"]
         if not topic:
             return None
         track = OwnShipTrack(values["own_ship_max_age_s"], values["own_ship_velocity_window_s"])
         self.own_ship_subscription = self.create_subscription(NavSatFix, topic, self.on_own_ship_fix,
-                                                              SENSOR_DATA_QOS)
+                                                              sensor_stream_qos(values["own_ship_qos"]))
         return track
 
     def on_own_ship_fix(self, msg: NavSatFix) -> None:

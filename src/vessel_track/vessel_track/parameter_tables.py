@@ -265,6 +265,9 @@ def _collision_rows() -> tuple[Param, ...]:
         Param("own_ship_fix_topic", "", "sensor_msgs/NavSatFix of the camera's platform (e.g. /own_ship/fix), taken "
               "as the camera's position (an antenna offset from camera_link is not corrected). '': the camera is "
               "fixed at the calibration's camera_lat/lon, the own ship at rest there."),
+        Param("own_ship_qos", "reliable", "QoS of the own-ship fix subscription: reliable (loses nothing) or "
+              "sensor_data (best effort: for a GPS driver that publishes best effort).",
+              choices=("reliable", "sensor_data")),
         Param("own_ship_max_age_s", 0.5, "A frame whose nearest own-ship fix is further than this from its stamp gets "
               "no CPA (has_cpa false, counted as own_ship_stale), s.", value_range=(0.0, 1.0e6)),
         Param("own_ship_velocity_window_s", 5.0, "The own ship's velocity is the least-squares slope of its fixes "

@@ -17,7 +17,7 @@ _NS_PER_S = 1_000_000_000
 
 @dataclass(frozen=True)
 class TimedMessage:
-    """A message to write at ``stamp_ns`` on ``topic`` of type ``msgtype`` (a rosbags message object)."""
+    """A message to write at log time ``stamp_ns`` on ``topic`` of type ``msgtype`` (a rosbags message object)."""
 
     stamp_ns: int
     topic: str
@@ -66,7 +66,7 @@ class MessageMerger:
 
     def _write_extra(self) -> None:
         item = self.extra[self.extra_index]
-        self.writer.write(item.topic, item.message)
+        self.writer.write(item.topic, item.message, item.stamp_ns)
         self.extra_index += 1
 
     def side_until(self, stamp_ns: int) -> None:

@@ -7,6 +7,8 @@
   hand box) and the mean number of other detections per frame below the horizon.
 - ``rank``: on every frame with the vessel's GPS in view, whether a box and the most likely box lie at its GPS
   point, by range (no hand labels: far frames count too).
+- ``images`` / ``score-images``: the detector over folders of any camera's images, and its figures against
+  YOLO labels (:mod:`vessel_tools.detect.image_cli`).
 - ``export-labels``: YOLO training data from the vessel's GPS projected through the calibration (the paper's
   trick: no hand labelling).
 
@@ -374,9 +376,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_recall_parser(sub)
     _add_rank_parser(sub)
     _add_export_labels_parser(sub)
+    from vessel_tools.detect.image_cli import add_parsers as add_image_parsers
     from vessel_tools.detect.training.train_cli import add_parser as add_train_parser
 
     add_train_parser(sub)
+    add_image_parsers(sub)
     return parser
 
 

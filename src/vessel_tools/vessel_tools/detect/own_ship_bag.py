@@ -4,6 +4,11 @@ A camera on a ship needs the ship's attitude and position at every image's stamp
 them beside the images, as a ship's own drivers would publish them: ``sensor_msgs/NavSatFix`` on
 ``/own_ship/fix`` and a REP-103 ``sensor_msgs/Imu`` (frame ``base_link``) on ``/own_ship/imu``, each stamped with
 the sample's time. Holes in the samples are counted, since the runtime refuses an attitude inside one.
+
+They are logged ``LEAD_S`` ahead of their stamps: live, a sensor's sample reaches the detector before the image of
+the same instant does (the image is encoded, sent and decoded first), so the detector interpolates the attitude at
+the image's stamp between the samples either side. A replay that sends each image and waits for its detections
+(``./vessel demo``) would otherwise hold back the sample after the image until the image is done.
 """
 
 from __future__ import annotations
@@ -19,6 +24,8 @@ from vessel_detect import bag_messages, bag_topics
 from vessel_tools.detect.bag_merge import TimedMessage
 
 OWN_SHIP_FRAME_ID = "base_link"
+LEAD_S = 0.5
+LEAD_NS = int(LEAD_S * 1e9)
 MAX_GAP_S = 2.0 * DEFAULT_MAX_AGE_S
 """A step between samples the runtime buffer would not interpolate across (its default): counted as a gap."""
 
@@ -49,11 +56,12 @@ def own_ship_window(samples: Sequence[OwnShipSample], first_s: float, last_s: fl
         else:
             fix = bag_messages.nav_sat_fix(stamp_ns, math.nan, math.nan, frame_id=options.own_ship_frame_id,
                                            status=bag_topics.STATUS_NO_FIX)
-        window.messages.append(TimedMessage(stamp_ns, options.own_ship_fix_topic, bag_topics.NAV_SAT_FIX, fix))
+        window.messages.append(TimedMessage(stamp_ns - LEAD_NS, options.own_ship_fix_topic, bag_topics.NAV_SAT_FIX,
+                                            fix))
         window.fixes += 1
         if sample.attitude is not None:
             imu = bag_messages.imu(stamp_ns, sample.attitude, frame_id=options.own_ship_frame_id)
-            window.messages.append(TimedMessage(stamp_ns, options.own_ship_imu_topic, bag_topics.IMU, imu))
+            window.messages.append(TimedMessage(stamp_ns - LEAD_NS, options.own_ship_imu_topic, bag_topics.IMU, imu))
             window.attitudes += 1
     return window
 

@@ -61,6 +61,20 @@ def _data_and_labels(model_path: Path, summary: dict) -> list[str]:
         "- every other COCO box scoring 0.3 or more is a `vessel`; weaker ones are ignore regions; frames between "
         f"GPS fixes more than {max_gps_gap_s:g} s apart are left out;",
         f"- frames: {counts}. All generated boxes: `{model_path.with_suffix('.labels.csv').name}`.",
+        *_webcams(summary.get("webcams")),
+    ]
+
+
+def _webcams(webcams: dict | None) -> list[str]:
+    """The other cameras' hand-labelled images the ``vessel`` class also learnt from, when there were any."""
+    if not webcams:
+        return []
+    images = ", ".join(f"{k} {v}" for k, v in sorted((webcams.get("images") or {}).items()))
+    return [
+        f"- other cameras (hand boxes, `vessel` only): `{webcams.get('folder')}`, train and test splits of the "
+        f"webcams {images} (images each); held out: {webcams.get('held_out') or 'none'}. Shore Livecams: D. Ahlers, "
+        "P. Bhattacharya, P. Nowak, U. Zölzer, \"Shore Livecams: A Maritime Dataset for Deep Learning based Object "
+        "Detection\", SITIS 2023.",
     ]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from vessel_tools.detect.training.augment import AugmentSettings
+from vessel_tools.detect.training.webcams import WebcamSettings
 
 
 @dataclass(frozen=True)
@@ -23,3 +24,4 @@ class TrainSettings:
     val_every: int = 5
     val_score: float = 0.05
     augment: AugmentSettings = field(default_factory=AugmentSettings)
+    webcam: WebcamSettings = field(default_factory=WebcamSettings)

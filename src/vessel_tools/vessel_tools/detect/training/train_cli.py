@@ -55,6 +55,12 @@ def _add_data_arguments(train: argparse.ArgumentParser) -> None:
     train.add_argument("--coco-detections", help="a saved `detect run --params config/detector_coco.yaml` CSV of "
                        "these frames (default: run the COCO detector now)")
     train.add_argument("--init-model", help="start weights, ONNX (default: the shared COCO YOLOX-Nano)")
+    train.add_argument("--webcams", default="",
+                       help="also learn the vessel class from other cameras' hand-labelled images: a folder laid out "
+                            "like Shore Livecams (images/{train,test}, YOLO labels/{train,test}, watercraft class 2), "
+                            "e.g. ../shared/shorecams (default: none)")
+    train.add_argument("--webcam-holdout", default="",
+                       help="comma-separated webcam ids (file-name prefixes) left out of --webcams, to score on")
 
 
 def _add_recipe_arguments(train: argparse.ArgumentParser) -> None:
@@ -79,6 +85,10 @@ def _add_recipe_arguments(train: argparse.ArgumentParser) -> None:
                        help="exported network input WIDTHxHEIGHT, multiples of 32 (default 1280x352: the band)")
     train.add_argument("--crop-size", default=f"{defaults.augment.crop_wh[0]}x{defaults.augment.crop_wh[1]}",
                        help="training crop WIDTHxHEIGHT, multiples of 32")
+    webcam_scales = ",".join(f"{v:g}" for v in defaults.webcam.scale_range)
+    train.add_argument("--webcam-scale-range", default=webcam_scales,
+                       help=f"LO,HI: webcam crops are resized by a factor drawn log-uniformly from this range (above "
+                            f"1 enlarges their many small boats; default {webcam_scales})")
 
 
 def _colour_jitter(text: str) -> dict[str, float]:
@@ -93,13 +103,13 @@ def _colour_jitter(text: str) -> dict[str, float]:
     return {"hue_deg": hue, "saturation": saturation, "value": value}
 
 
-def _scale_range(text: str) -> tuple[float, float]:
+def _scale_range(text: str, option: str = "--scale-range") -> tuple[float, float]:
     try:
         low, high = (float(v) for v in text.split(","))
     except ValueError:
-        raise DataError(f"--scale-range '{text}' is not LO,HI, e.g. 0.7,1.6") from None
+        raise DataError(f"{option} '{text}' is not LO,HI, e.g. 0.7,1.6") from None
     if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
-        raise DataError(f"--scale-range {text}: give two positive factors, the lower first, e.g. 0.7,1.6")
+        raise DataError(f"{option} {text}: give two positive factors, the lower first, e.g. 0.7,1.6")
     return low, high
 
 
@@ -188,6 +198,7 @@ def _train_settings(args: argparse.Namespace) -> TrainSettings:
     """The ``TrainSettings`` of the command line, or a ``DataError`` naming the option that is out of range."""
     from vessel_tools.detect.training.augment import AugmentSettings
     from vessel_tools.detect.training.settings import TrainSettings
+    from vessel_tools.detect.training.webcams import WebcamSettings
 
     input_w, input_h = _size(args.input_size, "--input-size")
     crop = _size(args.crop_size, "--crop-size")
@@ -195,7 +206,9 @@ def _train_settings(args: argparse.Namespace) -> TrainSettings:
     settings = TrainSettings(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
                              val_every=max(1, args.val_every), input_hw=(input_h, input_w),
                              augment=AugmentSettings(crop_wh=crop, scale_range=scale_range,
-                                                     **_colour_jitter(args.colour_jitter)))
+                                                     **_colour_jitter(args.colour_jitter)),
+                             webcam=WebcamSettings(scale_range=_scale_range(args.webcam_scale_range,
+                                                                               "--webcam-scale-range")))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
     return settings
@@ -229,9 +242,26 @@ def _training_data(args: argparse.Namespace) -> _TrainingData:
     usable = [lab for lab in usable if (lab.video, lab.frame) in images]
     counts = _label_counts(labels)
     _print_labels(labels, usable, counts, size_model)
+    usable += _webcam_labels(args, images)
     references, reference_name = _val_references(dataset, val_videos, labels, images)
     return _TrainingData(dataset, camera, init_model, labels, usable, images, counts, size_model, label_settings,
                          references, reference_name)
+
+
+def _webcam_labels(args: argparse.Namespace, images: dict) -> list[FrameLabels]:
+    """The ``--webcams`` images not held out, as ``vessel`` labels; their images are added to ``images``."""
+    if not args.webcams:
+        return []
+    from vessel_tools.detect.training.webcams import load_webcams
+
+    held_out = {v.strip() for v in args.webcam_holdout.split(",") if v.strip()}
+    labels, webcam_images, counts = load_webcams(args.webcams, held_out, log=lambda m: print(m, file=sys.stderr))
+    images.update(webcam_images)
+    args.webcam_counts = counts
+    print(f"webcams: {len(labels)} images, {sum(len(lab.boxes) for lab in labels)} vessel boxes "
+          f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()))}); held out: {', '.join(sorted(held_out))}",
+          file=sys.stderr)
+    return labels
 
 
 def _init_model(args: argparse.Namespace) -> Path:
@@ -272,7 +302,7 @@ def _write_model(args: argparse.Namespace, out: Path, model, result, settings: T
     from vessel_tools.detect.training.trainer import labels_csv, save_model
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    probe_key = sorted(data.images)[0]
+    probe_key = sorted(data.images, key=lambda k: (k[0] < 0, k))[0]  # a frame of the camera, not a webcam
     probe = band_input(data.images[probe_key], data.camera, settings.input_hw, settings.band_margin_px)
     result.onnx_max_abs_diff = save_model(model, out, settings, probe)
     out.with_suffix(".labels.csv").write_text(labels_csv(data.labels))
@@ -294,6 +324,8 @@ def _summary(args: argparse.Namespace, result, settings: TrainSettings, data: _T
         "calibration": _relative(args.calib), "init_model": str(data.init_model), "settings": _jsonable(settings),
         "label_settings": _jsonable(data.label_settings), "label_counts": data.counts,
         "size_model": {"width": size_model.width, "height": size_model.height, "n_points": size_model.n_points},
+        "webcams": {"folder": args.webcams, "held_out": args.webcam_holdout,
+                    "images": getattr(args, "webcam_counts", {})} if args.webcams else None,
         "history": result.history, "seconds": result.seconds, "onnx_max_abs_diff": result.onnx_max_abs_diff,
         "validation": None if result.validation is None else {
             "reference": data.reference_name, "frames": result.validation.frames,

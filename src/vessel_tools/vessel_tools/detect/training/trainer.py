@@ -26,6 +26,7 @@ from vessel_tools.detect.training.labels import CLASS_NAMES, FrameLabels
 from vessel_tools.detect.training.loss import yolox_loss
 from vessel_tools.detect.training.model import STRIDES, ExportHead, TrainableYolox, export_onnx
 from vessel_tools.detect.training.settings import TrainSettings
+from vessel_tools.detect.training.webcams import WEBCAM_SOURCE, webcam_sample
 
 
 class TorchDetectorModel:
@@ -71,6 +72,14 @@ def _targets(samples) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
              torch.from_numpy(s.ignore).float()) for s in samples]
 
 
+def _sample(image: np.ndarray, lab: FrameLabels, band_top: float, rng: np.random.Generator,
+            settings: TrainSettings):
+    """A webcam image is cropped anywhere (its horizon is unknown), a frame of the camera along its band."""
+    if lab.target_source == WEBCAM_SOURCE:
+        return webcam_sample(image, lab, rng, settings.augment, settings.webcam)
+    return random_sample(image, lab, band_top, rng, settings.augment)
+
+
 def _lr_at(step: int, steps_per_epoch: int, settings: TrainSettings) -> float:
     warmup = max(1, int(settings.warmup_epochs * steps_per_epoch))
     total = max(1, settings.epochs * steps_per_epoch)
@@ -114,8 +123,7 @@ def train(init_model: Path, labels: list[FrameLabels], images: dict, camera, set
         fg = 0
         for first in range(0, len(order), settings.batch_size):
             batch = [labels[i] for i in order[first : first + settings.batch_size]]
-            samples = [random_sample(images[(lab.video, lab.frame)], lab, band_top, rng, settings.augment)
-                       for lab in batch]
+            samples = [_sample(images[(lab.video, lab.frame)], lab, band_top, rng, settings) for lab in batch]
             for group in optimiser.param_groups:
                 group["lr"] = _lr_at(step, steps_per_epoch, settings)
             levels = model(torch.from_numpy(np.stack([s.image for s in samples])))
