@@ -175,6 +175,8 @@ def test_every_parameter_dumps_and_the_dump_reloads_the_same_node(package, execu
     probe.destroy_node()
 
     def same(a, b):
+        if isinstance(a, list) and isinstance(b, list):
+            return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
         if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
             return True
         return a == b

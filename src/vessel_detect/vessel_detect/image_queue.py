@@ -98,24 +98,23 @@ class ImageQueue:
                 self._lock.wait(0.5)
             if self._stopped:
                 return None
-            image = self._waiting.popleft()
-            if image.state == WAITING:
-                image.state = TAKEN
-            self._ahead_allowed = True
-            self._lock.notify_all()
-            return image
+            return self._take_locked()
 
     def take_nowait(self) -> QueuedImage | None:
         """The oldest waiting image, or None at once when there is none (or once stopped)."""
         with self._lock:
             if self._stopped or not self._waiting:
                 return None
-            image = self._waiting.popleft()
-            if image.state == WAITING:
-                image.state = TAKEN
-            self._ahead_allowed = True
-            self._lock.notify_all()
-            return image
+            return self._take_locked()
+
+    def _take_locked(self) -> QueuedImage:
+        """The oldest waiting image, taken (the lock held), allowing one more decode ahead."""
+        image = self._waiting.popleft()
+        if image.state == WAITING:
+            image.state = TAKEN
+        self._ahead_allowed = True
+        self._lock.notify_all()
+        return image
 
     def decode_ahead(self) -> None:
         """The decode-ahead thread's loop: decode the next image to be taken, once per image taken; until stopped."""

@@ -16,4 +16,4 @@ def test_parameter_file_part_matches_the_config_defaults():
     assert {f.name for f in fields(TrackerConfig)} <= set(params)
     assert {k: params[k] for k in defaults} == defaults
     assert TrackerConfig.from_dict({k: params[k] for k in defaults}) == TrackerConfig()
-    assert params["input_topic"] == "/vessel/detections" and params["output_topic"] == "/vessel/tracks/screen"
+    assert params["input_topic"] == "vessel/detections" and params["output_topic"] == "vessel/tracks/screen"
