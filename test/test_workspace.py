@@ -17,8 +17,9 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 INSTALL_DIR = REPO_ROOT / "ros2_ws" / "install"
 PYTHON_PACKAGES = ("vessel_calib", "vessel_detect", "vessel_track", "vessel_bringup", "vessel_tools")
-TOOLS_NOT_NODES = {("vessel_bringup", "graph")} | {("vessel_tools", tool) for tool in (
-    "vessel", "demo", "bench", "eval", "pipeline", "fit", "bag_build")}
+TOOLS_NOT_NODES = {("vessel_bringup", "graph"), ("vessel_bringup", "host")} | {("vessel_tools", tool) for tool in (
+    "vessel", "demo", "bench", "eval", "pipeline", "fit", "bag_build", "view")}
+"""Tools, and the host of other nodes (it starts nothing without its spec): help, not a node's start and stop."""
 
 
 def declared_executables() -> list[tuple[str, str]]:
@@ -150,7 +151,8 @@ def test_help_prints_usage_and_starts_nothing(package, executable, flag, ros_env
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize(("package", "executable"), sorted(e for e in TOOLS_NOT_NODES if e[0] == "vessel_tools"))
+@pytest.mark.parametrize(("package", "executable"),
+                         sorted(e for e in TOOLS_NOT_NODES if e != ("vessel_bringup", "graph")))
 def test_each_tool_script_answers_help(package, executable, ros_env, tmp_path):
     """`ros2 run vessel_tools demo --help` (and `vessel --help`): the tool's usage, nothing started or written."""
     path = INSTALL_DIR / package / "lib" / package / executable

@@ -135,6 +135,10 @@ def run_host(args: Sequence[str]) -> int:
 def main(argv: Sequence[str] | None = None) -> None:
     """Console entry point of ``host`` (started by ``./vessel graph --processes per-role``)."""
     args = list(sys.argv if argv is None else argv)
+    if any(arg in ("-h", "--help") for arg in args[1:args.index("--ros-args") if "--ros-args" in args else None]):
+        print(f"usage: {Path(args[0]).name} --ros-args --params-file FILE (its block's spec: a JSON list of nodes)"
+              f"\n\n{__doc__.strip()}")
+        sys.exit(0)
     try:
         status = run_host(args)
     except VesselError as error:
