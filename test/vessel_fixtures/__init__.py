@@ -1,1 +1,1 @@
-"""Synthetic cameras, frames and ONNX models for the tests (not installed)."""
+"""Synthetic cameras, frames, tracks and ONNX models, and the probe node, for the tests (not installed)."""

@@ -1,4 +1,8 @@
-"""Nodes of the project built in the test's own process and rclpy context, for checks that need no DDS traffic."""
+"""Nodes in the test's own process and rclpy context.
+
+The project's nodes built there, for checks that need no DDS traffic, and the probe node through which a test
+watches nodes that run in processes of their own.
+"""
 
 from __future__ import annotations
 
@@ -22,3 +26,32 @@ def set_parameter(node, name: str, value):
 
     (result,) = node.set_parameters([Parameter(name, value=value)])
     return result
+
+
+class ProbeNode:
+    """The test's own node in ``context``, spun only when the test spins ``executor``; subclasses subscribe.
+
+    Spinning on demand lets a test read what has arrived between spins, with no thread of its own.
+    """
+
+    def __init__(self, context, name: str) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.node = rclpy.create_node(name, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+
+    def close(self) -> None:
+        """Shut the executor down, then destroy the node; the context stays the test's to shut down."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+def status_values(diagnostics, name: str) -> dict[str, str]:
+    """The values of the last ``name`` status in ``diagnostics`` (DiagnosticArrays, oldest first); {} before one."""
+    for array in reversed(diagnostics):
+        for status in array.status:
+            if status.name == name:
+                return {value.key: value.value for value in status.values}
+    return {}

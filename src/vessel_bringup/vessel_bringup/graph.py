@@ -184,6 +184,21 @@ def _start_camera(args: argparse.Namespace, runner: GraphRunner, wanted: list[st
     print(f"[graph] started camera: {camera.role}", file=sys.stderr)
 
 
+def start_graph_nodes(args: argparse.Namespace, runner: GraphRunner, wanted: list[str], sim_time: bool,
+                      stop_requested: StopRequest) -> None:
+    """Start the ``wanted`` nodes as ``./vessel graph`` does: the recorder and the consumers, then the camera.
+
+    The camera comes last and waits until its readers have matched (unless ``--no-wait``): a frame sent earlier
+    would be lost without a count. A tool that starts the graph for itself (``./vessel view --source``) passes
+    ``./vessel graph``'s command line (``parse_args``) so that its graph is this very one. Raises VesselError naming
+    a node that stopped at start, or the time-out, and KeyboardInterrupt once ``stop_requested`` is set while the
+    camera waits.
+    """
+    _start_consumers(args, runner, wanted, sim_time)
+    if "camera" in wanted:
+        _start_camera(args, runner, wanted, sim_time, stop_requested)
+
+
 def _source_ended(runner: GraphRunner, respawn: bool) -> bool:
     """Whether the camera exited at the end of its source: under respawn only with status 0 (else it is restarted)."""
     camera = runner.running.get("camera")
@@ -256,9 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sim_time = sim_time_for_source(args.source or "") if args.sim_time == "auto" else args.sim_time == "true"
         if sim_time:
             print("[graph] use_sim_time: the nodes follow the replay's /clock", file=sys.stderr)
-        _start_consumers(args, runner, wanted, sim_time)
-        if "camera" in wanted:
-            _start_camera(args, runner, wanted, sim_time, stop_requested)
+        start_graph_nodes(args, runner, wanted, sim_time, stop_requested)
         _run_until_stopped(args, runner, stop_requested)
         statuses = runner.stop()
         print("[graph] stopped: " + ", ".join(f"{k}={v}" for k, v in statuses.items()), file=sys.stderr)

@@ -11,6 +11,7 @@ import pytest
 
 from vessel_detect import bag_messages, bag_reader, bag_salvage, bag_topics, bag_writer
 from vessel_fixtures import detect_synthetic as synthetic
+from vessel_fixtures.ros_nodes import ProbeNode, status_values
 
 pytestmark = pytest.mark.ros
 
@@ -23,7 +24,6 @@ if not CAMERA_EXE.exists():
     pytest.skip(f"{CAMERA_EXE} is not installed: run ./vessel setup", allow_module_level=True)
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CompressedImage, NavSatFix  # noqa: E402
@@ -31,16 +31,14 @@ from sensor_msgs.msg import CompressedImage, NavSatFix  # noqa: E402
 from vessel_msgs.msg import Detection2DArray  # noqa: E402
 
 
-class Probe:
+class Probe(ProbeNode):
     """A node in its own rclpy context and DDS domain that records what the camera publishes."""
 
     def __init__(self, context, ack: bool = False, ack_lag: int = 0, unanswered: frozenset = frozenset()) -> None:
+        super().__init__(context, "camera_test_probe")
         self.ack_lag = ack_lag
         self.unanswered = unanswered  # indices of the images this detector never answers (it dropped them)
         self._unacked = []
-        self.node = rclpy.create_node("camera_test_probe", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
         self.images, self.clock, self.fixes, self.truth, self.diagnostics = [], [], [], [], []
         self.received_at = []
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -72,15 +70,7 @@ class Probe:
 
     def camera_counts(self) -> dict:
         """count.* values of the camera's last diagnostics message."""
-        for array in reversed(self.diagnostics):
-            for status in array.status:
-                if status.name == "camera":
-                    return {v.key: v.value for v in status.values}
-        return {}
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
+        return status_values(self.diagnostics, "camera")
 
 
 def stamp(time_msg) -> int:

@@ -14,6 +14,7 @@ import pytest
 from vessel_calib.own_ship import OwnShipSample, ShipAttitude
 from vessel_detect import bag_messages, bag_topics, bag_writer
 from vessel_fixtures import detect_synthetic as synthetic
+from vessel_fixtures.ros_nodes import ProbeNode, status_values
 
 pytestmark = pytest.mark.ros
 
@@ -27,7 +28,6 @@ if not CAMERA_EXE.exists():
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import CompressedImage, Imu, NavSatFix  # noqa: E402
 
@@ -72,13 +72,11 @@ def stamp(message) -> int:
     return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
 
 
-class Probe:
+class Probe(ProbeNode):
     """Subscriptions to the camera's images, own-ship topics and diagnostics, in its own context."""
 
     def __init__(self, context) -> None:
-        self.node = rclpy.create_node("own_ship_probe", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
+        super().__init__(context, "own_ship_probe")
         self.images, self.fixes, self.imus, self.diagnostics = [], [], [], []
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         self.subscriptions = [
@@ -100,15 +98,7 @@ class Probe:
         return all(s.get_publisher_count() >= 1 for s in self.subscriptions)
 
     def camera_counts(self) -> dict:
-        for array in reversed(self.diagnostics):
-            for status in array.status:
-                if status.name == "camera":
-                    return {v.key: v.value for v in status.values}
-        return {}
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
+        return status_values(self.diagnostics, "camera")
 
 
 def test_the_camera_republishes_the_own_ship_with_the_images(tmp_path, ros_env, ros_context):

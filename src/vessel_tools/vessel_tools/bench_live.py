@@ -168,6 +168,7 @@ def run(args: argparse.Namespace) -> dict:
         started = time.monotonic()
         watcher.spin(args.warmup_s)
         measure_from_ns = time.time_ns()
+        session.monitor.open_window()
         counters_start = {key: _counter(watcher.diagnostics, node, key) for node, key in _COUNTERS}
         end = time.monotonic() + 60.0 * args.minutes
         next_sample = time.monotonic()
@@ -184,6 +185,7 @@ def run(args: argparse.Namespace) -> dict:
                 raise GraphError(f"node(s) {', '.join(failed)} exited during the run; logs in {log_dir}")
             watcher.spin(0.5)
         measure_to_ns = time.time_ns()
+        session.monitor.close_window()
         watcher.spin(3.0)  # the last frames' diagnostics and fixes
         counters_end = {key: _counter(watcher.diagnostics, node, key) for node, key in _COUNTERS}
         _sample_rss(session.monitor.pids, time.monotonic() - started, samples)
@@ -195,11 +197,16 @@ def run(args: argparse.Namespace) -> dict:
                         last_minute=_latencies_s(watcher, measure_to_ns - minute_ns, measure_to_ns),
                         seconds=(measure_to_ns - measure_from_ns) / 1e9,
                         per_minute=_latency_by_minute(watcher, measure_from_ns, measure_to_ns),
-                        live_tracks=live_tracks, stages=(
+                        live_tracks=live_tracks, cpu_s=_cpu_s(session.monitor), stages=(
                             _stage_latencies_ms(watcher, measure_from_ns, measure_from_ns + minute_ns),
                             _stage_latencies_ms(watcher, measure_to_ns - minute_ns, measure_to_ns)))
     finally:
         session.stop()
+
+
+def _cpu_s(monitor) -> dict[str, float]:
+    """Each process's CPU seconds over the measured minutes (this watcher included)."""
+    return {usage.name: usage.cpu_s_measured for usage in monitor.usage()}
 
 
 def _sample_rss(pids: dict[str, int], elapsed_s: float, samples: dict[str, list[tuple[float, float]]]) -> None:
@@ -215,7 +222,7 @@ _COUNTERS = (("camera", "frames_sent"), ("detector", "frames_received"), ("detec
 
 
 def _figures(args, folder, counters_start, counters_end, samples, all_latencies, first_minute, last_minute,
-             seconds, per_minute=(), live_tracks=(), stages=({}, {})) -> dict:
+             seconds, per_minute=(), live_tracks=(), stages=({}, {}), cpu_s=None) -> dict:
     delta = {key: counters_end[key] - counters_start[key] for key in counters_end}
     memory = {}
     for name, values in samples.items():
@@ -226,6 +233,9 @@ def _figures(args, folder, counters_start, counters_end, samples, all_latencies,
                         "samples_s_mb": [[float(a), float(b)] for a, b in values]}
     first, last = summary_ms(first_minute), summary_ms(last_minute)
     offered = delta["frames_sent"]
+    processed = delta["frames_processed"]
+    cpu_ms_per_frame = {name: 1000.0 * value / processed if processed else float("nan")
+                        for name, value in (cpu_s or {}).items()}
     return {
         "source": str(folder), "fps": args.fps, "minutes_measured": seconds / 60.0,
         "frames_offered": offered,
@@ -244,6 +254,8 @@ def _figures(args, folder, counters_start, counters_end, samples, all_latencies,
         "stage_latency_first_minute_ms": stages[0], "stage_latency_last_minute_ms": stages[1],
         "live_tracks_s": [[float(a), float(b)] for a, b in live_tracks],
         "memory": memory,
+        "cpu_ms_per_processed_frame": cpu_ms_per_frame,
+        "cpu_cores_used": {name: value / seconds for name, value in (cpu_s or {}).items()} if seconds > 0 else {},
         "machine": machine_info(),
     }
 
@@ -275,6 +287,9 @@ def format_report(result: dict) -> str:
         f"  per minute p50/p95, ms: {per_minute or 'none'}",
         f"  per node p50/p95 first -> last minute, ms: {stages or 'not measured'}",
         f"  tracker live tracks per 30 s: {' '.join(f'{n:.0f}' for n in tracks) or 'not reported'}",
+        "  CPU per processed frame, ms (cores in use): " + (", ".join(
+            f"{name} {ms:.1f} ({result['cpu_cores_used'].get(name, nan):.2f})"
+            for name, ms in sorted(result.get("cpu_ms_per_processed_frame", {}).items())) or "not measured"),
         "  memory (RSS, MB) start -> end (growth per minute):",
     ]
     for name, m in sorted(result["memory"].items()):

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from vessel_fixtures.presets import paper_simulation_settings
+from vessel_fixtures.track_synthetic import screen_track
 
 pytestmark = pytest.mark.ros
 
@@ -41,35 +42,16 @@ def write_params(path, camera_block=None, extra=""):
 def screen_tracks(camera, stamp, k, stamp_msg):
     """One image's tracks as the tracker would publish them: a vessel crossing ~180 m out, a sailboat, a bad one."""
     from vessel_common.qos import sec_to_stamp
-    from vessel_msgs.msg import VesselTrack, VesselTrackArray
-    from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
+    from vessel_msgs.msg import VesselTrackArray
 
-    model = BoxSizeDistanceModel()
     out = VesselTrackArray()
     out.header.stamp = stamp_msg
     out.header.frame_id = "camera"
     for tid, (x, y), conf in (("T1", (150.0 + 2.5 * 4 * k, 100.0 - 1.0 * 4 * k), 0.9),
                               ("T2", (260.0, 150.0 + 0.2 * 4 * k), 0.5),
                               ("T3", (math.nan, math.nan), 0.7)):
-        msg = VesselTrack()
-        msg.header = out.header
-        msg.id = tid
-        msg.status = VesselTrack.STATUS_CONFIRMED
-        msg.confidence = conf
-        msg.detection_count = k + 1
-        msg.first_seen = sec_to_stamp(stamp - 4.0 * k)
-        msg.last_seen = stamp_msg
-        if tid == "T3":
-            msg.bbox.center.position.x = math.nan
-            msg.bbox.center.position.y = 500.0
-            msg.bbox.size_x = msg.bbox.size_y = 10.0
-        else:
-            xs, ys, _ = camera.world_to_screen(x, y)
-            w, h = model.size_of_depth(depth_of_world(camera, x, y))
-            msg.bbox.center.position.x, msg.bbox.center.position.y = float(xs), float(ys)
-            msg.bbox.size_x, msg.bbox.size_y = float(w), float(h)
-        msg.screen_covariance = [16.0, 0.0, 0.0, 16.0]
-        out.tracks.append(msg)
+        out.tracks.append(screen_track(out.header, tid, x, y, camera, confidence=conf, detection_count=k + 1,
+                                       first_seen=sec_to_stamp(stamp - 4.0 * k)))
     return out
 
 

@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from vessel_fixtures.track_synthetic import screen_track
+
 pytestmark = pytest.mark.ros
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable: source ros2_ws/install/setup.bash")
@@ -20,30 +22,17 @@ OWN_SHIP_TOPIC = "/own_ship/fix"
 def tracks_at(stamp, positions, first_stamp=T0):
     """One image's screen tracks, a box per ``positions`` id -> (east, north) m from the camera (NaN: a bad box)."""
     from vessel_common.qos import sec_to_stamp
-    from vessel_msgs.msg import VesselTrack, VesselTrackArray
+    from vessel_msgs.msg import VesselTrackArray
     from vessel_tools.track.simulation import challenge_camera
-    from vessel_track.distance_model import BoxSizeDistanceModel, depth_of_world
 
-    camera, model = challenge_camera(), BoxSizeDistanceModel()
+    camera = challenge_camera()
     out = VesselTrackArray()
     out.header.stamp = sec_to_stamp(stamp)
     out.header.frame_id = "camera_link"
     for tid, (x, y) in positions.items():
-        msg = VesselTrack()
-        msg.header = out.header
-        msg.id, msg.status, msg.confidence = tid, VesselTrack.STATUS_CONFIRMED, 0.9
-        msg.detection_count = int(round(stamp - first_stamp)) + 1
-        msg.first_seen, msg.last_seen = sec_to_stamp(first_stamp), out.header.stamp
-        if math.isnan(x):
-            msg.bbox.center.position.x, msg.bbox.center.position.y = math.nan, 500.0
-            msg.bbox.size_x = msg.bbox.size_y = 10.0
-        else:
-            xs, ys, _ = camera.world_to_screen(x, y)
-            w, h = model.size_of_depth(depth_of_world(camera, x, y))
-            msg.bbox.center.position.x, msg.bbox.center.position.y = float(xs), float(ys)
-            msg.bbox.size_x, msg.bbox.size_y = float(w), float(h)
-        msg.screen_covariance = [16.0, 0.0, 0.0, 16.0]
-        out.tracks.append(msg)
+        out.tracks.append(screen_track(out.header, tid, x, y, camera, confidence=0.9,
+                                       detection_count=int(round(stamp - first_stamp)) + 1,
+                                       first_seen=sec_to_stamp(first_stamp)))
     return out
 
 

@@ -34,7 +34,7 @@ that no alert window reaches it."""
 
 def _vector(value, name: str) -> np.ndarray:
     array = np.asarray(value, dtype=float).reshape(-1)
-    if array.shape != (2,) or not np.all(np.isfinite(array)):
+    if array.shape != (2,) or not (math.isfinite(array[0]) and math.isfinite(array[1])):
         raise DataError(f"collision: {name} must be 2 finite numbers (east, north), got {value!r}")
     return array
 
@@ -42,13 +42,17 @@ def _vector(value, name: str) -> np.ndarray:
 def _matrix(value, name: str, symmetric: bool = True) -> np.ndarray:
     """A 2x2 matrix, finite; a covariance is made exactly symmetric and must have non-negative variances."""
     array = np.asarray(value, dtype=float)
-    if array.size != 4 or not np.all(np.isfinite(array)):
+    if array.size != 4:
         raise DataError(f"collision: {name} must be a finite 2x2 matrix, got {value!r}")
     array = array.reshape(2, 2)
+    a, b, c, d = float(array[0, 0]), float(array[0, 1]), float(array[1, 0]), float(array[1, 1])
+    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c) and math.isfinite(d)):
+        raise DataError(f"collision: {name} must be a finite 2x2 matrix, got {value!r}")
     if symmetric:
-        if array[0, 0] < 0 or array[1, 1] < 0:
+        if a < 0 or d < 0:
             raise DataError(f"collision: {name} has a negative variance: {array.tolist()}")
-        array = (array + array.T) / 2.0
+        off_diagonal = (b + c) / 2.0
+        array = np.array([[a, off_diagonal], [off_diagonal, d]])
     return array
 
 
@@ -80,13 +84,21 @@ class Kinematics:
     @property
     def covariance(self) -> np.ndarray:
         """The 4x4 covariance of (east, north, v_east, v_north)."""
-        pv = self.position_velocity_covariance
-        return np.block([[self.position_covariance, pv], [pv.T, self.velocity_covariance]])
+        covariance = np.empty((4, 4))
+        covariance[:2, :2] = self.position_covariance
+        covariance[:2, 2:] = self.position_velocity_covariance
+        covariance[2:, :2] = self.position_velocity_covariance.T
+        covariance[2:, 2:] = self.velocity_covariance
+        return covariance
 
 
 def at_rest(position=(0.0, 0.0)) -> Kinematics:
     """A body that does not move and whose position is exact: a fixed camera, the own ship of a harbour camera."""
     return Kinematics(np.asarray(position, dtype=float), np.zeros(2))
+
+
+AT_REST_AT_ORIGIN = at_rest()
+"""The fixed camera as an own ship (``Kinematics`` is immutable, so one instance serves every vessel)."""
 
 
 @dataclass(frozen=True)
@@ -108,7 +120,7 @@ class CollisionFigures:
 
 
 def _sigma(gradient: np.ndarray, covariance: np.ndarray) -> float:
-    return float(math.sqrt(max(float(gradient @ covariance @ gradient), 0.0)))
+    return math.sqrt(max(float(gradient @ covariance @ gradient), 0.0))
 
 
 def range_bearing(relative_position, relative_covariance) -> tuple[float, float, float, float]:

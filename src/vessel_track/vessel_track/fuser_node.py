@@ -46,11 +46,11 @@ from vessel_common.state_file import settings_fingerprint
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
 from vessel_track.collision import (
+    AT_REST_AT_ORIGIN,
     AlertRule,
     Kinematics,
     OwnShipEstimate,
     OwnShipTrack,
-    at_rest,
     collision_figures,
     range_bearing,
 )
@@ -179,7 +179,7 @@ def fill_collision_fields(msg: VesselTrack, world: WorldTrack, own: OwnShipEstim
                                                                           world.position_covariance)
         if not world.velocity_known or world.screen.status == STATUS_LOST or (own is not None and not own.usable):
             return msg
-        ship = at_rest() if own is None else Kinematics(own.kinematics.position, own.kinematics.velocity,
+        ship = AT_REST_AT_ORIGIN if own is None else Kinematics(own.kinematics.position, own.kinematics.velocity,
                                                         velocity_covariance=own.kinematics.velocity_covariance)
         figures = collision_figures(ship, Kinematics(world.position, world.velocity, world.position_covariance,
                                                      world.velocity_covariance, world.position_velocity_covariance))

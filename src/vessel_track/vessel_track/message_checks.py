@@ -165,19 +165,22 @@ def covariance_problem(values, what: str = "position covariance", unknown_allowe
     It must be finite, symmetric and positive semi-definite, to the precision of its own entries; with
     ``unknown_allowed``, all NaN (unknown) passes too.
     """
-    P = np.asarray(values, dtype=float).reshape(-1)
-    if P.size != 4:
-        return f"{what} has {P.size} values, not 4"
-    if unknown_allowed and np.all(np.isnan(P)):
+    values = np.asarray(values, dtype=float).reshape(-1)
+    if values.size != 4:
+        return f"{what} has {values.size} values, not 4"
+    a, b, c, d = (float(v) for v in values)
+    finite = all(math.isfinite(v) for v in (a, b, c, d))
+    if not finite and unknown_allowed and all(math.isnan(v) for v in (a, b, c, d)):
         return ""
-    if not np.all(np.isfinite(P)):
+    if not finite:
         return f"{what} is not finite"
-    P = P.reshape(2, 2)
-    scale = float(np.abs(P).max()) or 1.0
-    if abs(P[0, 1] - P[1, 0]) > 1e-6 * scale:
-        return f"{what} is not symmetric ({P[0, 1]:g} against {P[1, 0]:g})"
-    if float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()) < -1e-9 * scale:
-        return f"{what} is not positive semi-definite (diagonal {P[0, 0]:g}, {P[1, 1]:g})"
+    scale = max(abs(a), abs(b), abs(c), abs(d)) or 1.0
+    if abs(b - c) > 1e-6 * scale:
+        return f"{what} is not symmetric ({b:g} against {c:g})"
+    off_diagonal = 0.5 * (b + c)
+    least_eigenvalue = 0.5 * (a + d) - math.hypot(0.5 * (a - d), off_diagonal)
+    if least_eigenvalue < -1e-9 * scale:
+        return f"{what} is not positive semi-definite (diagonal {a:g}, {d:g})"
     return ""
 
 

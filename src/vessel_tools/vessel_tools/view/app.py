@@ -171,8 +171,8 @@ def _spin(executor) -> None:
 def start_graph(args: argparse.Namespace, running: Running, stop) -> None:
     """Start the graph on ``--source`` as ``./vessel graph`` does, the detector also publishing its annotated image.
 
-    Uses ``vessel_bringup.graph``'s own steps (its runner, consumers first, the camera once every link is matched)
-    so the view starts the very graph ``./vessel graph`` would; one more parameter file turns the image on.
+    Uses ``vessel_bringup.graph``'s runner and ``start_graph_nodes`` (consumers first, the camera once every link is
+    matched) so the view starts the very graph ``./vessel graph`` would; one more parameter file turns the image on.
     """
     from vessel_bringup import graph
     from vessel_bringup.graph_nodes import GRAPH_NODES, sim_time_for_source
@@ -186,8 +186,7 @@ def start_graph(args: argparse.Namespace, running: Running, stop) -> None:
     running.runner = runner = graph.GraphRunner(params, log_dir=args.log_dir, echo=args.log_dir is None)
     wanted = [node.name for node in GRAPH_NODES]
     sim_time = sim_time_for_source(str(args.source))
-    graph._start_consumers(graph_args, runner, wanted, sim_time)
-    graph._start_camera(graph_args, runner, wanted, sim_time, stop)
+    graph.start_graph_nodes(graph_args, runner, wanted, sim_time, stop)
 
 
 def watch_graph(running: Running, stop) -> None:
