@@ -90,13 +90,14 @@ def run_host(args: Sequence[str]) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from vessel_common.run import check_parameter_names, hosted
+    from vessel_common.run import check_parameter_names, hosted, shut_down
     from vessel_detect.detector_sharing import SharedDetection
 
     entries = read_spec(args)
     rclpy.init(args=[args[0]] if args else None)
     shared = SharedDetection()
     nodes = []
+    executor = None
     try:
         for entry in entries:
             label = _label(entry["args"], entry["node"])
@@ -122,14 +123,12 @@ def run_host(args: Sequence[str]) -> int:
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
+    except RuntimeError:  # rclpy's RCLError: a call made as rclpy's signal thread shut the context down
+        if rclpy.ok():
+            raise
+        return 0
     finally:
-        for node in reversed(nodes):
-            try:
-                getattr(node, "close", lambda: None)()
-                node.destroy_node()
-            except Exception as error:  # shutting down: say it, release the others
-                print(f"warning: while shutting down {node.get_name()}: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
+        shut_down(nodes, executor)
 
 
 def main(argv: Sequence[str] | None = None) -> None:

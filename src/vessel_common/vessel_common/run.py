@@ -23,6 +23,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, get_parameter_value
+from rclpy.signals import uninstall_signal_handlers
 
 from vessel_common.command_line import EXIT_BAD_INPUT
 from vessel_common.errors import VesselError, file_system_problem
@@ -65,13 +66,18 @@ def run_node(node_factory: NodeFactory, args: Sequence[str] | None = None, *, pr
     except RuntimeError as error:  # rclpy's RCLError: malformed --ros-args
         return _error(f"cannot start: {error}. Check the --ros-args part of the command line (e.g. -p name:=value, "
                       "--params-file FILE).")
-    node = None
+    node = executor = None
     try:
         node = with_command_line(node_factory, args)()
         preloader = _Preloader(preload) if preload else None  # after the node: its entities are announced first
         check_parameter_names(node, args)
-        return _spin(node, preloader)
+        executor = SingleThreadedExecutor()  # held here: shut_down releases it only after rclpy's signal thread
+        return _spin(node, executor, preloader)
     except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    except RuntimeError:  # rclpy's RCLError: a call made as rclpy's signal thread shut the context down
+        if rclpy.ok():
+            raise
         return 0
     except VesselError as error:
         return _error(str(error))
@@ -83,7 +89,7 @@ def run_node(node_factory: NodeFactory, args: Sequence[str] | None = None, *, pr
             raise
         return _error(problem)
     finally:
-        _shut_down(node)
+        shut_down([] if node is None else [node], executor)
 
 
 def _error(message: str) -> int:
@@ -175,13 +181,12 @@ def _misspelt(node: Node, names: Sequence[str]) -> str:
     return ", ".join(with_closest(name, declared) for name in names)
 
 
-def _spin(node: Node, preloader: _Preloader | None) -> int:
-    """Spin the node on rclpy's executor until rclpy shuts down (SIGINT) or the node has ``finished`` its work.
+def _spin(node: Node, executor: SingleThreadedExecutor, preloader: _Preloader | None) -> int:
+    """Spin the node on ``executor`` until rclpy shuts down (SIGINT) or the node has ``finished`` its work.
 
     ``rclpy.spin`` stops at shutdown only: a camera at the end of its bag says ``finished`` (and its ``exit_status``),
     and a failed preload stops the node too.
     """
-    executor = SingleThreadedExecutor()
     executor.add_node(node)
     while executor.context.ok() and not getattr(node, "finished", False):
         executor.spin_once(timeout_sec=0.1)
@@ -190,29 +195,47 @@ def _spin(node: Node, preloader: _Preloader | None) -> int:
     return int(getattr(node, "exit_status", 0))
 
 
-def _shut_down(node: Node | None) -> None:
-    """Release the node (its ``close()`` first, if it has one) and rclpy; a late SIGINT changes nothing now."""
-    _ignore_late_sigint()
-    if node is not None:
+def shut_down(nodes: Sequence[Node], executor: SingleThreadedExecutor | None = None) -> None:
+    """Release the nodes (each one's ``close()`` first, if it has one), the executor and rclpy; a late signal
+    changes nothing.
+
+    rclpy handles SIGINT/SIGTERM in a thread of its own, beside this one: it triggers the SIGINT guard condition of
+    every executor and shuts the context down. That thread has to be over before the executor goes, else it
+    triggers a guard condition already freed and the process dies with SIGSEGV instead of closing. The executor is
+    then shut down, not left to the garbage collector: a callback cut short by SIGINT leaves the nodes' timers and
+    subscriptions in its wait set, where ``destroy_node`` could not destroy them before the process's exit. Nodes
+    are closed in reverse order of creation, each on its own: one that fails to close is named and the others are
+    still closed (whatever they have written is finished).
+    """
+    _ignore_late_signals()
+    uninstall_signal_handlers()  # ends (joins) rclpy's signal thread
+    for node in reversed(nodes):
         try:
             close = getattr(node, "close", None)
             if close is not None:
                 close()
-            node.destroy_node()
         except Exception as error:
-            print(f"warning: while shutting down: {error}", file=sys.stderr)
+            print(f"warning: while shutting down {node.get_name()}: {error}", file=sys.stderr)
+    try:
+        if executor is not None:
+            executor.shutdown()
+        for node in reversed(nodes):
+            node.destroy_node()
+    except Exception as error:
+        print(f"warning: while shutting down: {error}", file=sys.stderr)
     rclpy.try_shutdown()
-    _ignore_late_sigint()  # again: shutting rclpy down puts back the handler it replaced at init
 
 
-def _ignore_late_sigint() -> None:
-    """Ignore SIGINT once the exit status is decided.
+def _ignore_late_signals() -> None:
+    """Ignore SIGINT and SIGTERM once the exit status is decided.
 
     A supervisor stopping the graph while this node already leaves (e.g. the camera at the end of a bag) must not
-    turn a clean exit into death by signal.
+    turn a clean exit into death by signal. Set before rclpy's handlers are uninstalled, which then leave them as
+    they are rather than put back the defaults they replaced at init (SIGTERM's would end the process mid-close).
     """
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 class _Preloader:
