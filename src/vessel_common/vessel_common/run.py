@@ -196,8 +196,7 @@ def _spin(node: Node, executor: SingleThreadedExecutor, preloader: _Preloader | 
 
 
 def shut_down(nodes: Sequence[Node], executor: SingleThreadedExecutor | None = None) -> None:
-    """Release the nodes (each one's ``close()`` first, if it has one), the executor and rclpy; a late signal
-    changes nothing.
+    """Release the nodes (each one's ``close()`` first), the executor and rclpy; a late signal changes nothing.
 
     rclpy handles SIGINT/SIGTERM in a thread of its own, beside this one: it triggers the SIGINT guard condition of
     every executor and shuts the context down. That thread has to be over before the executor goes, else it
