@@ -63,6 +63,16 @@ def dataset(data_dir):
 
 
 @pytest.fixture(scope="session")
+def shorecams_dir() -> Path:
+    """The Shore Livecams webcam images (``$VESSEL_SHORECAMS`` or ``../shared/shorecams``); skips when absent."""
+    path = _shared_dir("VESSEL_SHORECAMS", "shorecams")
+    if not (path / "images").is_dir() or not (path / "labels").is_dir():
+        pytest.skip(f"Shore Livecams images not found at {path}: set VESSEL_SHORECAMS or put them at "
+                    "../shared/shorecams")
+    return path
+
+
+@pytest.fixture(scope="session")
 def model_path() -> Path:
     """The YOLOX-Nano ONNX model (``$VESSEL_MODEL`` or ``../shared/models``); skips the test when absent."""
     path = Path(os.environ.get("VESSEL_MODEL") or REPO_ROOT.parent / "shared/models/yolox_nano/yolox_nano.onnx")

@@ -55,7 +55,9 @@ MODEL_PARAMS: tuple[Param, ...] = (
               "classes.txt next to the model, else COCO's for 80-class models)."),
     Param("layout", "auto", "Output layout: auto (from the output shape), yolox, yolov5 or yolov8.",
           choices=("auto", "yolox", "yolov5", "yolov8")),
-    Param("intra_op_threads", 2, "onnxruntime intra-op threads (the detector's share of the CPU).",
+    Param("intra_op_threads", 1, "onnxruntime intra-op threads (the detector's share of the CPU). In a graph on "
+          "two cores 1 leaves the other core to the camera, tracker and fuser, and more frames get through; the "
+          "detector alone (offline, or a host serving several cameras) is faster with 2.",
               value_range=(1, 64)),
 )
 

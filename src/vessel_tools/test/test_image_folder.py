@@ -115,7 +115,33 @@ def test_the_any_camera_preset_searches_the_whole_height_without_a_calibration()
 
     values, camera = load_params_file(repo_file("config/detector_any_camera.yaml"))
     assert camera is None and values["size_prior.dimension"] == "none" and not values["appearance_model"]
-    model = SimpleNamespace(class_names=[*values["classes"], "other"], input_hw=(416, 416))
+    model = SimpleNamespace(class_names=[*values["classes"], "other"], input_hw=(352, 1280))
     # What the node builds with no camera.* parameters: the challenge camera's horizon, opened by the margin.
     detector = VesselDetector(model, detector_config(values), CHALLENGE_HORIZON_Y, (1280, 720))
     assert detector.band((1920, 1080)) == (0.0, 1080.0) and detector.band((1280, 720)) == (0.0, 720.0)
+
+
+def test_the_shipped_preset_finds_the_boats_of_a_webcam_it_never_trained_on(shorecams_dir):
+    """The preset's model and tiling on held-out webcam images: most boats 20 px wide or more are found."""
+    from vessel_tools.detect.image_folder import read_image, read_yolo_labels, whole_image_detector
+
+    detector = whole_image_detector(str(repo_file("config/detector_any_camera.yaml")))
+    labels = [str(shorecams_dir / "labels" / split) for split in ("train", "test")]
+    found = wanted = images = 0
+    held_out = [path for split in ("test", "train") for webcam in ("hyovmh0t", "519srew5")
+                for path in sorted((shorecams_dir / "images" / split).glob(f"{webcam}*"))]
+    for path in held_out:
+        image, problem = read_image(path)
+        assert image is not None, problem
+        truth = read_yolo_labels(labels, path.name, (image.shape[1], image.shape[0]), 2)
+        truth = truth[(truth[:, 2] - truth[:, 0]) >= 20] if truth is not None else np.zeros((0, 4))
+        if not len(truth):
+            continue
+        dets = detector.detect(image)
+        found += int((match_image(dets.boxes_xyxy, dets.scores, truth) >= 0).sum())
+        wanted += len(truth)
+        images += 1
+        if images == 4:
+            break
+    assert wanted >= 3, "too few labelled boats of 20 px or more in the held-out webcams"
+    assert found >= 0.6 * wanted, f"{found} of {wanted} boats of 20 px or more found"
