@@ -228,8 +228,9 @@ def test_a_restarted_camera_carries_on_after_the_last_frame_it_sent(tmp_path, ro
         for k in range(8):
             (source / f"{k:05d}.jpg").write_bytes(synthetic.frame_jpeg(k))
     resume_file = tmp_path / "state" / "camera.resume"
+    # end_linger_s: the second camera's latched fix must match the probe before it exits (DDS takes up to seconds).
     params = (f"source:={source}", "rate:=0.0", "ack_timeout_s:=60.0", "wait_for_subscribers:=-1", "fps:=1.0",
-              "end_linger_s:=0.5", f"resume_file:={resume_file}")
+              "end_linger_s:=3.0", f"resume_file:={resume_file}")
     probe = Probe(ros_context, ack=True, unanswered=frozenset({3}))  # frame 3's detections never come
     first = start_camera(ros_env, *params)
     second = None
