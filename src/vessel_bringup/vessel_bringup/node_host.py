@@ -90,7 +90,7 @@ def run_host(args: Sequence[str]) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from vessel_common.run import check_parameter_names, hosted, shut_down
+    from vessel_common.run import check_parameter_names, hosted, shut_down, stopped_by_signal
     from vessel_detect.detector_sharing import SharedDetection
 
     entries = read_spec(args)
@@ -121,10 +121,8 @@ def run_host(args: Sequence[str]) -> int:
         while executor.context.ok():
             executor.spin_once(timeout_sec=0.1)
         return 0
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    except RuntimeError:  # rclpy's RCLError: a call made as rclpy's signal thread shut the context down
-        if rclpy.ok():
+    except (KeyboardInterrupt, ExternalShutdownException, RuntimeError) as error:
+        if not stopped_by_signal(error):
             raise
         return 0
     finally:

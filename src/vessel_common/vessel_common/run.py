@@ -73,10 +73,8 @@ def run_node(node_factory: NodeFactory, args: Sequence[str] | None = None, *, pr
         check_parameter_names(node, args)
         executor = SingleThreadedExecutor()  # held here: shut_down releases it only after rclpy's signal thread
         return _spin(node, executor, preloader)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    except RuntimeError:  # rclpy's RCLError: a call made as rclpy's signal thread shut the context down
-        if rclpy.ok():
+    except (KeyboardInterrupt, ExternalShutdownException, RuntimeError) as error:
+        if not stopped_by_signal(error):
             raise
         return 0
     except VesselError as error:
@@ -90,6 +88,17 @@ def run_node(node_factory: NodeFactory, args: Sequence[str] | None = None, *, pr
         return _error(problem)
     finally:
         shut_down([] if node is None else [node], executor)
+
+
+def stopped_by_signal(error: BaseException) -> bool:
+    """``error`` only says the process was told to stop (SIGINT, SIGTERM, an external shutdown).
+
+    rclpy's RCLError (a RuntimeError) counts when the context is already down: a call made just as rclpy's signal
+    thread shut it down, e.g. while the executor built its wait set.
+    """
+    if isinstance(error, (KeyboardInterrupt, ExternalShutdownException)):
+        return True
+    return isinstance(error, RuntimeError) and not rclpy.ok()
 
 
 def _error(message: str) -> int:
