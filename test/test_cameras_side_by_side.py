@@ -9,16 +9,14 @@ import time
 
 import pytest
 
+from vessel_fixtures.challenge_bags import build_video_bags
+
 pytestmark = [pytest.mark.ros, pytest.mark.data, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
 def two_bags(data_dir, tmp_path_factory):
-    bags = tmp_path_factory.mktemp("bags")
-    done = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
-                           "--videos", "13,14", "--out", str(bags)], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return bags
+    return build_video_bags(data_dir, tmp_path_factory.mktemp("bags"), "13,14", timeout_s=600)
 
 
 def _image_stamps(bag) -> set[int]:

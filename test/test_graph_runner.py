@@ -8,6 +8,8 @@ import sys
 
 import pytest
 
+from vessel_fixtures.challenge_bags import build_video_bags
+
 
 @pytest.mark.ros
 @pytest.mark.data
@@ -20,11 +22,7 @@ def test_every_frame_of_a_bag_reaches_the_gps_publisher(data_dir, model_path, ro
     """
     from vessel_detect.bag_reader import BagReader
 
-    bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
-                            "--videos", "14", "--out", str(bags)], env=ros_env, capture_output=True, text=True,
-                           timeout=300)
-    assert build.returncode == 0, build.stderr[-2000:]
+    bags = build_video_bags(data_dir, tmp_path / "bags", "14", env=ros_env)
     recording = tmp_path / "recording"
     run = subprocess.run([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_14"),
                           "--rate", "0", "--exit-at-end", "--record", str(recording), "--log-dir",
@@ -56,11 +54,7 @@ def test_a_killed_node_is_restarted_and_fixes_flow_again(data_dir, model_path, r
 
     from vessel_detect.bag_reader import BagReader
 
-    bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
-                            "--videos", "15", "--out", str(bags)], env=ros_env, capture_output=True, text=True,
-                           timeout=300)
-    assert build.returncode == 0, build.stderr[-2000:]
+    bags = build_video_bags(data_dir, tmp_path / "bags", "15", env=ros_env)
     logs, recording = tmp_path / "logs", tmp_path / "recording"
     graph = subprocess.Popen([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_15"),
                               "--rate", "4" if hot_standby else "2", "--exit-at-end", "--respawn", "--record",
@@ -154,11 +148,7 @@ def test_a_killed_camera_or_recorder_carries_on(data_dir, model_path, ros_env, t
     from vessel_detect.bag_salvage import recover_bag
     from vessel_detect.resume_files import recording_parts
 
-    bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
-                            "--videos", "14", "--out", str(bags)], env=ros_env, capture_output=True, text=True,
-                           timeout=300)
-    assert build.returncode == 0, build.stderr[-2000:]
+    bags = build_video_bags(data_dir, tmp_path / "bags", "14", env=ros_env)
     logs, recording = tmp_path / "logs", tmp_path / "recording"
     graph = subprocess.Popen([sys.executable, "-m", "vessel_bringup.graph", "--source", str(bags / "video_14"),
                               "--rate", "0" if killed == "camera" else "4", "--exit-at-end", "--respawn", "--record",

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import sys
 import time
 
 import pytest
+
+from vessel_fixtures.challenge_bags import build_video_bags
 
 pytestmark = [pytest.mark.ros, pytest.mark.data, pytest.mark.slow]
 
@@ -30,11 +31,7 @@ def _launch_available() -> str | None:
 
 @pytest.fixture(scope="module")
 def video_bag(data_dir, tmp_path_factory):
-    bags = tmp_path_factory.mktemp("bags")
-    done = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
-                           "--videos", "13", "--out", str(bags)], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return bags / "video_13"
+    return build_video_bags(data_dir, tmp_path_factory.mktemp("bags"), "13") / "video_13"
 
 
 @pytest.mark.parametrize("managed", ["false", "true"])

@@ -15,6 +15,8 @@ import time
 
 import pytest
 
+from vessel_fixtures.challenge_bags import build_video_bags
+
 pytestmark = [pytest.mark.ros, pytest.mark.data, pytest.mark.slow]
 
 
@@ -57,10 +59,7 @@ def _fixes(recording) -> list[tuple[int, float, float, int]]:
 
 def test_two_namespaces_publish_the_fixes_of_one_host(namespaces, data_dir, model_path, ros_env, tmp_path):
     env = {k: v for k, v in ros_env.items() if k != "ROS_AUTOMATIC_DISCOVERY_RANGE"}  # across the veth: subnet
-    bags = tmp_path / "bags"
-    build = subprocess.run([sys.executable, "-m", "vessel_tools.detect.bag_build", "--data", str(data_dir),
-                            "--videos", "14", "--out", str(bags)], env=env, capture_output=True, text=True, timeout=300)
-    assert build.returncode == 0, build.stderr[-2000:]
+    bags = build_video_bags(data_dir, tmp_path / "bags", "14", env=env)
     bag = str(bags / "video_14")
     one_host = tmp_path / "one_host"
     single = subprocess.run([sys.executable, "-m", "vessel_bringup.graph", "--source", bag, "--rate", "0",

@@ -1,1 +1,2 @@
-"""Synthetic cameras, frames, tracks and ONNX models, and the probe node, for the tests (not installed)."""
+"""Synthetic cameras, frames, tracks and ONNX models, the challenge videos as bags, and the probe node, for the tests
+(not installed)."""
