@@ -1,2 +1,4 @@
-"""Synthetic cameras, frames, tracks and ONNX models, the challenge videos as bags, and the probe node, for the tests
-(not installed)."""
+"""Test fixtures, not installed.
+
+Synthetic cameras, frames, tracks and ONNX models, the challenge videos as bags, and the probe node.
+"""
