@@ -57,6 +57,7 @@ _BY_LAYER = {
                vessel_track.track_fuser vessel_track.collision""",
     "ros": """vessel_common.qos vessel_common.health vessel_common.parameter_declaration vessel_common.node_state
               vessel_common.lifecycle vessel_common.run vessel_common.node_parameters vessel_calib.camera_parameters
+              vessel_common.message_types vessel_common.wire
               vessel_detect.bag_messages vessel_detect.bag_writer vessel_detect.bag_reader vessel_detect.bag_salvage
               vessel_detect.ros_messages vessel_detect.image_source vessel_detect.file_sources
               vessel_detect.live_sources vessel_detect.source_spec vessel_track.node_params
@@ -89,6 +90,7 @@ _BY_LAYER = {
                 vessel_tools.view.app""",
     "apps": """vessel_tools.bench_detector vessel_tools.replay_check vessel_tools.demo vessel_tools.demo_report
                vessel_tools.bench vessel_tools.bench_live vessel_tools.bench_restart vessel_tools.bench_soak
+               vessel_tools.bench_messages
                vessel_tools.cli vessel_tools.calibrate vessel_tools.proc_monitor vessel_tools.results_page
                vessel_tools.parameter_docs
                vessel_tools.calibrate_options vessel_tools.calibrate_pairs vessel_tools.calibrate_box_anchor

@@ -55,3 +55,20 @@ def status_values(diagnostics, name: str) -> dict[str, str]:
             if status.name == name:
                 return {value.key: value.value for value in status.values}
     return {}
+
+
+def capture_published(patch, publisher, msg_type) -> list:
+    """What ``publisher`` publishes from now on, as ``msg_type`` messages (serialised ones are deserialised).
+
+    The tracking chain publishes CDR bytes (``vessel_common.wire``): reading them back with rclpy also checks that
+    they are the message an ordinary subscriber receives.
+    """
+    from rclpy.serialization import deserialize_message
+
+    published: list = []
+
+    def publish(msg) -> None:
+        published.append(deserialize_message(msg, msg_type) if isinstance(msg, bytes) else msg)
+
+    patch.setattr(publisher, "publish", publish)
+    return published

@@ -22,15 +22,8 @@ from rosbags.rosbag2.storage_mcap import McapReader, msgsrc
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from vessel_common.errors import DataError
-from vessel_detect.bag_messages import (
-    msg_types_from_dir,
-    normalise_msgtype,
-    ns_of_stamp,
-    ns_to_sec,
-    require_type,
-    typestore,
-    vessel_msgs_dirs,
-)
+from vessel_common.message_types import msg_types_from_dir, require_type, typestore, vessel_msgs_dirs
+from vessel_detect.bag_messages import normalise_msgtype, ns_of_stamp, ns_to_sec
 from vessel_detect.bag_topics import BUILD_HINT, COMPRESSED_IMAGE, DEFAULT_IMAGE_TOPIC, NAV_SAT_FIX
 
 _LOG = logging.getLogger(__name__)

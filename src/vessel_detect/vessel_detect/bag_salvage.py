@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vessel_common.errors import DataError
-from vessel_detect.bag_messages import normalise_msgtype, require_type, typestore
+from vessel_common.message_types import require_type, typestore
+from vessel_detect.bag_messages import normalise_msgtype
 from vessel_detect.bag_reader import BagMessage, checked_type, mcap_file_of
 from vessel_detect.bag_writer import BagWriter
 

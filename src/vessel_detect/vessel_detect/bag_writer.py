@@ -20,7 +20,8 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from rosbags.rosbag2.errors import WriterError
 
 from vessel_common.errors import DataError
-from vessel_detect.bag_messages import normalise_msgtype, ns_of_stamp, require_type, typestore
+from vessel_common.message_types import require_type, typestore
+from vessel_detect.bag_messages import normalise_msgtype, ns_of_stamp
 
 _CHUNK_CRC_OFFSET = 1 + 8 + 8 + 8 + 8
 """Bytes from the start of an MCAP chunk record to its uncompressed_crc: opcode, record length, message start and

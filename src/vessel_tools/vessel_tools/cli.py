@@ -80,6 +80,8 @@ TOOLS: dict[str, Tool | Group] = {
         "soak": Tool("vessel_tools.bench_soak", "the tracker and fuser cores without ROS on a looped stream for "
                      "minutes: CPU per frame, memory and every structure's size, minute by minute",
                      "[--minutes 10] [--fps 25] [--scene looped|harbour] [--recording DIR] [--out F]"),
+        "messages": Tool("vessel_tools.bench_messages", "a track array through rclpy's message conversion against "
+                         "the nodes' wire codec: ms per array each way, in one process", "[--tracks 10,40,80]"),
         "view": Tool("vessel_tools.view.bench", "the graph's frames/s with 20 WebSocket clients of ./vessel view "
                      "(one never reading) against none, in one run", "[--clients 20] [--frames 36] [--rounds 2]"),
     }, default="graph"),

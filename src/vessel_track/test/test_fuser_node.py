@@ -401,13 +401,15 @@ def test_a_restarted_fuser_refuses_a_pickled_state_file_and_carries_on_from_its_
     half = len(messages) // 2
 
     def run(messages, state_file):
+        from vessel_fixtures.ros_nodes import capture_published
+        from vessel_msgs.msg import VesselTrackArray
         overrides = [Parameter("camera.builtin_calibration", value=True), Parameter("state_file", value=state_file),
                      Parameter("state_period_s", value=0.0)]
         with monkeypatch.context() as patch:  # one process, one node after the other
             node = node_in_context(patch, ros_context, FuserNode, overrides)
-            log, published = _Lines(), []
+            log = _Lines()
             patch.setattr(node, "get_logger", lambda: log)
-            patch.setattr(node.publisher, "publish", published.append)
+            published = capture_published(patch, node.publisher, VesselTrackArray)
             try:
                 for msg in messages:
                     node.on_tracks(msg)
@@ -437,12 +439,12 @@ def fuser_node(monkeypatch, ros_context):
     """A FuserNode in this process on the built-in calibration, and the arrays it published."""
     from rclpy.parameter import Parameter
 
-    from vessel_fixtures.ros_nodes import node_in_context
+    from vessel_fixtures.ros_nodes import capture_published, node_in_context
+    from vessel_msgs.msg import VesselTrackArray
     from vessel_track.fuser_node import FuserNode
 
     node = node_in_context(monkeypatch, ros_context, FuserNode, [Parameter("camera.builtin_calibration", value=True)])
-    published: list = []
-    monkeypatch.setattr(node.publisher, "publish", published.append)
+    published = capture_published(monkeypatch, node.publisher, VesselTrackArray)
     try:
         yield node, published
     finally:

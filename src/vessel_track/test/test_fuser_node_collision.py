@@ -150,11 +150,13 @@ def test_cpa_fields_and_alerts_reach_subscribers(ros_context, monkeypatch, wait_
 def test_a_stale_or_bad_own_ship_fix_gives_no_cpa_and_is_counted(ros_context, monkeypatch):
     """No own ship known at a frame: has_cpa false, counted on /diagnostics, named once in the log; the node goes on."""
     from vessel_calib import geodesy
+    from vessel_fixtures.ros_nodes import capture_published
+    from vessel_msgs.msg import VesselTrackArray
 
     fuser = _fuser(monkeypatch, ros_context, ("own_ship_fix_topic", OWN_SHIP_TOPIC))
-    log, published = _Lines(), []
+    log = _Lines()
     monkeypatch.setattr(fuser, "get_logger", lambda: log)
-    monkeypatch.setattr(fuser.publisher, "publish", published.append)
+    published = capture_published(monkeypatch, fuser.publisher, VesselTrackArray)
     lat0, lon0 = fuser.camera.camera_lat, fuser.camera.camera_lon
     positions = {"T1": _closing_in(0), "T2": (260.0, 150.0)}
     try:
@@ -195,11 +197,12 @@ def _run_moving(monkeypatch, ros_context, own_speed, world, frames=12, topic=OWN
     The own ship goes east at ``own_speed`` from the calibration's position, a fix every 0.5 s (none without a topic).
     """
     from vessel_calib import geodesy
+    from vessel_fixtures.ros_nodes import capture_published
+    from vessel_msgs.msg import VesselTrackArray
 
     with monkeypatch.context() as patch:  # one node after the other
         fuser = _fuser(patch, ros_context, ("own_ship_fix_topic", topic))
-        published: list = []
-        patch.setattr(fuser.publisher, "publish", published.append)
+        published = capture_published(patch, fuser.publisher, VesselTrackArray)
         lat0, lon0 = fuser.camera.camera_lat, fuser.camera.camera_lon
         try:
             for k in range(frames):

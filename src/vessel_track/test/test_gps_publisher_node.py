@@ -98,8 +98,9 @@ def _track_message(track_id, latitude=32.703, stamp_s=100, **fields):
 def gps_node(monkeypatch, ros_context):
     """A GpsPublisherNode in this process: ``send(sec, *tracks, nanosec=0)`` and what it published."""
     import rclpy.parameter
+    from sensor_msgs.msg import NavSatFix
 
-    from vessel_fixtures.ros_nodes import node_in_context
+    from vessel_fixtures.ros_nodes import capture_published, node_in_context
 
     pytest.importorskip("vessel_msgs.msg", reason="vessel_msgs is not built: run ./vessel setup")
     from vessel_msgs.msg import VesselTrackArray
@@ -107,9 +108,8 @@ def gps_node(monkeypatch, ros_context):
 
     builtin = [rclpy.parameter.Parameter("camera.builtin_calibration", value=True)]
     node = node_in_context(monkeypatch, ros_context, GpsPublisherNode, builtin)
-    fixes, arrays = [], []
-    monkeypatch.setattr(node.fix_publisher, "publish", fixes.append)
-    monkeypatch.setattr(node.fixes_publisher, "publish", arrays.append)
+    fixes = capture_published(monkeypatch, node.fix_publisher, NavSatFix)
+    arrays = capture_published(monkeypatch, node.fixes_publisher, VesselTrackArray)
 
     def send(sec, *tracks, nanosec=0):
         message = VesselTrackArray()

@@ -293,12 +293,14 @@ def test_a_restarted_tracker_refuses_a_pickled_state_file_and_carries_on_from_it
     half = len(frames) // 2
 
     def run(frames, state_file):
+        from vessel_fixtures.ros_nodes import capture_published
+        from vessel_msgs.msg import VesselTrackArray
         overrides = [Parameter("state_file", value=state_file), Parameter("state_period_s", value=0.0)]
         with monkeypatch.context() as patch:  # one process, one node after the other
             node = node_in_context(patch, ros_context, TrackerNode, overrides)
-            log, published = _Lines(), []
+            log = _Lines()
             patch.setattr(node, "get_logger", lambda: log)
-            patch.setattr(node.publisher, "publish", published.append)
+            published = capture_published(patch, node.publisher, VesselTrackArray)
             try:
                 for frame in frames:
                     node.on_detections(detection_array(frame.stamp, frame.boxes_xyxy, frame.scores))
@@ -329,12 +331,12 @@ def test_a_restarted_tracker_refuses_a_pickled_state_file_and_carries_on_from_it
 @pytest.fixture
 def tracker_node(monkeypatch, ros_context):
     """A TrackerNode in this process with its defaults, and the arrays it published."""
-    from vessel_fixtures.ros_nodes import node_in_context
+    from vessel_fixtures.ros_nodes import capture_published, node_in_context
+    from vessel_msgs.msg import VesselTrackArray
     from vessel_track.tracker_node import TrackerNode
 
     node = node_in_context(monkeypatch, ros_context, TrackerNode)
-    published: list = []
-    monkeypatch.setattr(node.publisher, "publish", published.append)
+    published = capture_published(monkeypatch, node.publisher, VesselTrackArray)
     try:
         yield node, published
     finally:

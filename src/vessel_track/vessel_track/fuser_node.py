@@ -43,6 +43,7 @@ from vessel_common.node_parameters import declare_table
 from vessel_common.node_state import NodeState, Standby
 from vessel_common.qos import reliable_qos, sensor_stream_qos, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
+from vessel_common.wire import WireType, decoding_callback, encoded_or_none
 from vessel_msgs.msg import VesselTrack, VesselTrackArray
 from vessel_track import deferred_imports
 from vessel_track.collision import (
@@ -54,7 +55,7 @@ from vessel_track.collision import (
     collision_figures,
     range_bearing,
 )
-from vessel_track.message_checks import checked_tracks, header_refusal, order_refusal, report
+from vessel_track.message_checks import TRACK_ARRAY_TYPE, checked_tracks, header_refusal, order_refusal, report
 from vessel_track.node_params import fuser_settings_of, main_with_checks, refuse_moved_parameters
 from vessel_track.parameter_tables import FUSER_PARAMETERS
 from vessel_track.track_fuser import STATUS_LOST, ScreenTrack, TrackFuser, WorldTrack
@@ -120,14 +121,16 @@ def screen_track_from_msg(msg: VesselTrack, stamp: float, source: str = "measure
         detection_count=int(msg.detection_count),
         first_seen=stamp_to_sec(msg.first_seen),
         last_seen=last_seen,
-        center_cov=np.asarray(msg.screen_covariance, dtype=float).reshape(2, 2),
+        center_cov=np.array(msg.screen_covariance, dtype=float).reshape(2, 2),
         velocity_px=np.array([msg.screen_velocity.x, msg.screen_velocity.y], dtype=float),
         pose_sigma_px=np.nan_to_num(np.abs(np.asarray(msg.pose_sigma_px, dtype=float))),
     )
 
 
-def _finite_or_nan(values) -> list[float]:
-    return [float(v) if math.isfinite(v) else math.nan for v in np.asarray(values, dtype=float).ravel()]
+def _finite_or_nan(values) -> np.ndarray:
+    array = np.array(values, dtype=np.float64).ravel()
+    array[~np.isfinite(array)] = math.nan
+    return array
 
 
 def _symmetric(matrix) -> np.ndarray:
@@ -240,13 +243,15 @@ class FuserNode(Node):
                                read_only=not self.standby.active)
         self._reported_counts: dict[str, int] = {}
         self.alert_rule = alert_rule_of(values)
+        self.wire = WireType(TRACK_ARRAY_TYPE)
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.alert_publisher = self.create_publisher(VesselTrackArray, values["collision_alerts_topic"],
                                                      reliable_qos(depth))
         self.health.watch_subscribers(self.publisher, self.alert_publisher)
         self.own_ship = self._subscribe_own_ship(values)
-        self.subscription = self.create_subscription(VesselTrackArray, input_topic, self.on_tracks,
-                                                     reliable_qos(depth))
+        self.subscription = self.create_subscription(
+            VesselTrackArray, input_topic, decoding_callback(self.wire, self.on_tracks, self.health),
+            reliable_qos(depth), raw=True)
         self.get_logger().info(
             f"fuser: {input_topic} -> {output_topic}; camera heading {self.camera.heading_deg:.1f} deg, weights "
             f"{s.fusion.weights_mode}, {s.fusion.screen_source} boxes, error model "
@@ -284,8 +289,12 @@ class FuserNode(Node):
         self.core.cue_stats = settings.cue_stats
         self.core.error_model = settings.error_model
 
-    def on_tracks(self, msg: VesselTrackArray) -> None:
-        """Fuse one image's tracks and publish them with their world state (what ``message_checks`` refuses aside)."""
+    def on_tracks(self, msg) -> None:
+        """Fuse one image's tracks and publish them with their world state (what ``message_checks`` refuses aside).
+
+        ``msg``: a ``VesselTrackArray`` as ``WireType`` decodes it (or an rclpy one): its tracks are edited and sent
+        on.
+        """
         refusal = header_refusal(msg.header.stamp)
         if refusal is not None:
             report(self.health, [refusal])
@@ -305,23 +314,28 @@ class FuserNode(Node):
         own = self._own_ship_at(stamp)
         world = self.core.update(stamp, screen, None if own is None else own.kinematics.position)
         by_id = {id(w.screen): w for w in world}
-        out = VesselTrackArray()
-        out.header = msg.header
+        filled = []
         for track_msg, screen_track in zip(tracks, screen, strict=True):
             world_track = by_id[id(screen_track)]
             track_msg = fill_world_fields(track_msg, world_track)
-            out.tracks.append(fill_collision_fields(track_msg, world_track, own, self.alert_rule))
-        alerts = VesselTrackArray(header=out.header, tracks=[t for t in out.tracks if t.cpa_alert])
+            filled.append(fill_collision_fields(track_msg, world_track, own, self.alert_rule))
+        out = self.wire.new(header=msg.header, tracks=filled)
+        alerts = self.wire.new(header=msg.header, tracks=[t for t in filled if t.cpa_alert])
         publishing = self.standby.publishing()
         if publishing:
-            self.publisher.publish(out)
+            self._publish(self.publisher, out)
             if alerts.tracks:
-                self.alert_publisher.publish(alerts)
+                self._publish(self.alert_publisher, alerts)
         self._report(out)
         self._report_alerts(alerts)
         self.health.observe_input(stamp)
         if publishing:
             self.state.save(stamp, self.core)
+
+    def _publish(self, publisher, msg) -> None:
+        cdr = encoded_or_none(self.wire, msg, self.health)
+        if cdr is not None:
+            publisher.publish(cdr)
 
     def _own_ship_at(self, stamp: float) -> OwnShipEstimate | None:
         """The own ship at ``stamp`` (None: a fixed camera); a problem with it is counted, logged once."""
@@ -332,13 +346,13 @@ class FuserNode(Node):
             self.health.problem(own.problem, PROBLEM_MESSAGES[own.problem])
         return own
 
-    def _report_alerts(self, alerts: VesselTrackArray) -> None:
+    def _report_alerts(self, alerts) -> None:
         """Tracks in collision alert: counted per frame and track (an event, not a fault), and named now."""
         if alerts.tracks:
             self.health.count("cpa_alerts", len(alerts.tracks))
         self.health.set_value("tracks_in_alert", ",".join(t.id for t in alerts.tracks))
 
-    def _report(self, out: VesselTrackArray) -> None:
+    def _report(self, out) -> None:
         self.health.count("frames")
         for kind, count in self.core.counts.items():
             new = count - self._reported_counts.get(kind, 0)

@@ -35,10 +35,12 @@ from vessel_common.health import NodeHealth
 from vessel_common.node_parameters import declare_table
 from vessel_common.node_state import Standby
 from vessel_common.qos import reliable_qos, stamp_to_sec
+from vessel_common.wire import WireType, decoding_callback, encoded_or_none
 from vessel_msgs.msg import VesselTrackArray
 from vessel_track.error_model import MEAN_RADIAL_ERROR_PER_SIGMA
 from vessel_track.message_checks import (
     TIME_TOLERANCE_S,
+    TRACK_ARRAY_TYPE,
     checked_tracks,
     covariance_problem,
     header_refusal,
@@ -151,8 +153,10 @@ class GpsPublisherNode(Node):
         self.fixes_publisher = (self.create_publisher(VesselTrackArray, fixes_topic, reliable_qos(depth))
                                 if fixes_topic else None)
         self.health.watch_subscribers(self.fix_publisher, self.fixes_publisher)
-        self.subscription = self.create_subscription(VesselTrackArray, input_topic, self.on_tracks,
-                                                     reliable_qos(depth))
+        self.wire = WireType(TRACK_ARRAY_TYPE)
+        self.subscription = self.create_subscription(
+            VesselTrackArray, input_topic, decoding_callback(self.wire, self.on_tracks, self.health),
+            reliable_qos(depth), raw=True)
         self.get_logger().info(f"gps_publisher: {input_topic} -> {fix_topic} (frame_id {self.frame_id!r}), "
                                f"{fixes_topic or 'no all-vessel output'}")
 
@@ -167,8 +171,8 @@ class GpsPublisherNode(Node):
         self.altitude_variance_m2 = values["altitude_variance_m2"]
         self.publish_no_fix = values["publish_no_fix"]
 
-    def on_tracks(self, msg: VesselTrackArray) -> None:
-        """Publish the target's fix and the array of every vessel for one image.
+    def on_tracks(self, msg) -> None:
+        """Publish the target's fix and the array of every vessel for one image (``msg``: a ``VesselTrackArray``).
 
         What ``message_checks`` refuses is left out: nothing is published for a refused message, and a refused
         track is neither the target nor in the array.
@@ -205,10 +209,10 @@ class GpsPublisherNode(Node):
         if publishing and (fields.status == NavSatStatus.STATUS_FIX or self.publish_no_fix):
             self._publish_fix(msg.header.stamp, fields)
         if publishing and self.fixes_publisher is not None:
-            out = VesselTrackArray()
-            out.header = msg.header
-            out.tracks = [t for t in tracks if t.has_world or t.status == STATUS_LOST]
-            self.fixes_publisher.publish(out)
+            out = self.wire.new(header=msg.header, tracks=[t for t in tracks if t.has_world or t.status == STATUS_LOST])
+            cdr = encoded_or_none(self.wire, out, self.health)
+            if cdr is not None:
+                self.fixes_publisher.publish(cdr)
         if target is not None and fields.status == NavSatStatus.STATUS_FIX:
             self.health.set_value("target", target.id)
             self.health.set_value("target_distance_m", float(target.distance_m))

@@ -39,6 +39,9 @@ BACKWARDS_RESET_S = 1.0
 tracker never publishes a smaller step back, so the fuser and gps_publisher see only restarts."""
 TRACK_STATUSES = {0: "TENTATIVE", 1: "CONFIRMED", 2: "COASTING", 3: "LOST"}
 """The ``VesselTrack.STATUS_*`` constants."""
+
+TRACK_ARRAY_TYPE = "vessel_msgs/msg/VesselTrackArray"
+"""The tracking chain's array type, as ``vessel_common.wire`` names it."""
 STATUS_LOST = 3
 
 PROBLEMS = {

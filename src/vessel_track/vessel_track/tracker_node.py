@@ -16,6 +16,7 @@ older stamp drops the message; a score outside [0, 1] drops the detection) is ``
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import fields
@@ -29,9 +30,11 @@ from vessel_common.node_parameters import declare_table
 from vessel_common.node_state import NodeState, Standby
 from vessel_common.qos import reliable_qos, sec_to_stamp, stamp_to_sec
 from vessel_common.state_file import settings_fingerprint
-from vessel_msgs.msg import Detection2DArray, VesselTrack, VesselTrackArray
+from vessel_common.wire import WireType, encoded_or_none
+from vessel_msgs.msg import Detection2DArray, VesselTrackArray
 from vessel_track import deferred_imports
 from vessel_track.message_checks import (
+    TRACK_ARRAY_TYPE,
     checked_detections,
     detection_refusal,
     header_refusal,
@@ -127,44 +130,46 @@ def accepted_classes(classes) -> frozenset[str] | None:
     return None if not classes or EVERY_CLASS in classes else frozenset(classes)
 
 
-def track_to_msg(state: TrackState, header, pose_sigma: Sequence[float] = (0.0, 0.0)) -> VesselTrack:
+def track_to_msg(state: TrackState, header, pose_sigma: Sequence[float] = (0.0, 0.0)) -> object:
     """A ``VesselTrack`` of one tracker state: screen fields filled, world fields NaN, not the target.
 
-    ``pose_sigma``: what the camera pose's uncertainty adds to the box's ideal x, y std (``pose_input``).
+    Built as ``vessel_common.wire`` encodes it. ``pose_sigma``: what the camera pose's uncertainty adds to the box's
+    ideal x, y std (``pose_input``).
     """
-    msg = VesselTrack()
-    msg.header = header
-    msg.id = state.track_id
-    msg.is_target = False
-    msg.score = math.nan
-    msg.confidence = float(state.confidence)
-    msg.class_id = state.label
-    msg.status = int(state.status)
-    msg.detection_count = int(state.detection_count)
-    msg.first_seen = sec_to_stamp(state.first_seen)
-    msg.last_seen = sec_to_stamp(state.last_seen)
-    msg.bbox.center.position.x = float(state.center[0])
-    msg.bbox.center.position.y = float(state.center[1])
-    msg.bbox.center.theta = 0.0
-    msg.bbox.size_x = float(state.size[0])
-    msg.bbox.size_y = float(state.size[1])
-    msg.screen_velocity.x = float(state.velocity[0])
-    msg.screen_velocity.y = float(state.velocity[1])
-    msg.screen_covariance = [float(v) for v in np.asarray(state.center_cov, dtype=float).ravel()]
-    msg.pose_sigma_px = [float(v) for v in pose_sigma]
-    if state.measured_center is not None:
-        msg.detection_bbox.center.position.x = float(state.measured_center[0])
-        msg.detection_bbox.center.position.y = float(state.measured_center[1])
-        msg.detection_bbox.size_x = float(state.measured_size[0])
-        msg.detection_bbox.size_y = float(state.measured_size[1])
-    msg.has_world = False
     nan = math.nan
+    msg = _track_type().new(header=header, id=state.track_id, is_target=False, score=nan,
+                            confidence=float(state.confidence), class_id=state.label, status=int(state.status),
+                            detection_count=int(state.detection_count), has_world=False,
+                            latitude=nan, longitude=nan, distance_m=nan, bearing_deg=nan, expected_error_m=nan)
+    _set_stamp(msg.first_seen, state.first_seen)
+    _set_stamp(msg.last_seen, state.last_seen)
+    box = msg.bbox
+    box.center.position.x, box.center.position.y = float(state.center[0]), float(state.center[1])
+    box.size_x, box.size_y = float(state.size[0]), float(state.size[1])
+    msg.screen_velocity.x, msg.screen_velocity.y = float(state.velocity[0]), float(state.velocity[1])
+    msg.screen_covariance = np.array(state.center_cov, dtype=np.float64).ravel()
+    msg.pose_sigma_px = np.array(pose_sigma, dtype=np.float64)
+    if state.measured_center is not None:
+        measured = msg.detection_bbox
+        measured.center.position.x = float(state.measured_center[0])
+        measured.center.position.y = float(state.measured_center[1])
+        measured.size_x, measured.size_y = float(state.measured_size[0]), float(state.measured_size[1])
     msg.position.x = msg.position.y = msg.position.z = nan
     msg.velocity.x = msg.velocity.y = msg.velocity.z = nan
-    msg.position_covariance = [nan] * 4
-    msg.velocity_covariance = [nan] * 4
-    msg.latitude = msg.longitude = msg.distance_m = msg.bearing_deg = msg.expected_error_m = nan
+    msg.position_covariance = np.full(4, nan)
+    msg.velocity_covariance = np.full(4, nan)
     return msg
+
+
+@functools.cache
+def _track_type() -> WireType:
+    return WireType("vessel_msgs/msg/VesselTrack")
+
+
+def _set_stamp(stamp, seconds: float) -> None:
+    """``stamp`` (a ``builtin_interfaces/Time``) set to ``seconds``, as ``sec_to_stamp`` rounds it."""
+    rounded = sec_to_stamp(seconds)
+    stamp.sec, stamp.nanosec = rounded.sec, rounded.nanosec
 
 
 class TrackerNode(Node):
@@ -184,6 +189,7 @@ class TrackerNode(Node):
                                settings_fingerprint(config, sorted(self.classes or ()), self.confidence_class),
                                read_only=not self.standby.active)
         self._reported = TrackerCounters()
+        self.wire = WireType(TRACK_ARRAY_TYPE)
         self.publisher = self.create_publisher(VesselTrackArray, output_topic, reliable_qos(depth))
         self.health.watch_subscribers(self.publisher)
         self.subscription = self.create_subscription(Detection2DArray, input_topic, self.on_detections,
@@ -230,13 +236,13 @@ class TrackerNode(Node):
         except VesselError as error:
             self.health.problem("bad_message", f"detection array dropped: {error}")
             return
-        out = VesselTrackArray()
-        out.header = msg.header
         sigmas = pose_sigma_px(msg.camera_pose, np.array([s.center for s in states]).reshape(-1, 2))
-        out.tracks = [track_to_msg(s, msg.header, sigma) for s, sigma in zip(states, sigmas, strict=True)]
+        out = self.wire.new(header=msg.header, tracks=[track_to_msg(s, msg.header, sigma)
+                                                       for s, sigma in zip(states, sigmas, strict=True)])
         publishing = self.standby.publishing()
-        if publishing:
-            self.publisher.publish(out)
+        cdr = encoded_or_none(self.wire, out, self.health) if publishing else None
+        if cdr is not None:
+            self.publisher.publish(cdr)
         self._report(len(boxes), states)
         if publishing:
             self.state.save(stamp, self.tracker)
