@@ -71,3 +71,29 @@ def test_an_output_file_is_checked_before_the_work(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(FileExistsError):  # turned into one error line by command_line_tool
         output_file(tmp_path / "file" / "b.csv")
+
+
+def test_a_destructor_failing_at_exit_after_ctrl_c_prints_no_traceback(tmp_path):
+    """Ctrl-C during an import leaves half-built objects; their failing __del__ at shutdown stays quiet."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "tool.py"
+    script.write_text(
+        "import sys\n"
+        "from vessel_common.command_line import command_line_tool\n"
+        "class HalfBuilt:\n"
+        "    def __del__(self):\n"
+        "        self.expr is None\n"
+        "@command_line_tool(interrupted='interrupted, nothing written')\n"
+        "def main(argv):\n"
+        "    global kept\n"
+        "    kept = HalfBuilt()\n"
+        "    raise KeyboardInterrupt\n"
+        "sys.exit(main([]))\n")
+    source = Path(__file__).resolve().parents[1]
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60,
+                            env={"PYTHONPATH": str(source), "PATH": "/usr/bin:/bin"})
+    assert result.returncode == 130, result.stderr
+    assert result.stderr.strip() == "interrupted, nothing written", result.stderr

@@ -40,9 +40,16 @@ def command_line_tool(run: Main | None = None, *, interrupted: str = "interrupte
                 return EXIT_BAD_INPUT
             except KeyboardInterrupt:
                 print(interrupted, file=sys.stderr)
+                # An interrupt in the middle of an import leaves half-built objects whose __del__ fails while the
+                # interpreter shuts down ("Exception ignored in ..." and a traceback): noise after a Ctrl-C.
+                sys.unraisablehook = _ignore_unraisable
                 return EXIT_INTERRUPTED
             return int(status or 0)
 
         return main
 
     return decorate(run) if run is not None else decorate
+
+
+def _ignore_unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` after an interrupt: what fails in a destructor then is not reported."""

@@ -54,7 +54,8 @@ class TrackRecord:
     @property
     def center_cov(self) -> np.ndarray:
         """(2, 2) covariance of ``center``, px²."""
-        return self.kf.P[np.ix_((0, 2), (0, 2))].copy()
+        P = self.kf.P
+        return np.array([[P[0, 0], P[0, 2]], [P[2, 0], P[2, 2]]])
 
     @property
     def box_xyxy(self) -> np.ndarray:

@@ -168,8 +168,8 @@ def process_noise_matrix(dt: float, q: float, model: str, q_y: float | None = No
         raise DataError(f"unknown process noise model {model!r}; "
                         f"use one of {', '.join(PROCESS_NOISE_MODELS)}")
     Q = np.zeros((4, 4))
-    Q[np.ix_((0, 1), (0, 1))] = q * unit
-    Q[np.ix_((2, 3), (2, 3))] = (q if q_y is None else q_y) * unit
+    Q[0:2, 0:2] = q * unit
+    Q[2:4, 2:4] = (q if q_y is None else q_y) * unit
     return Q
 
 
@@ -327,8 +327,9 @@ class MultiTargetTracker:
             else:
                 alive.append(track)
         self._tracks = alive
+        steps: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # F and Q by time step: most tracks share one
         for track in self._tracks:
-            self._predict(track, stamp)
+            self._predict(track, stamp, steps)
         return reported
 
     def _match(self, centers: np.ndarray, sizes: np.ndarray, confs: np.ndarray) -> tuple[dict[int, int], list[int]]:
@@ -449,12 +450,18 @@ class MultiTargetTracker:
         extra = (cfg.measurement_std_size_frac * np.asarray(size, dtype=float)) ** 2
         return np.diag([base + extra[0], base + extra[1]])
 
-    def _predict(self, track: TrackRecord, stamp: float) -> None:
+    def _predict(self, track: TrackRecord, stamp: float,
+                 steps: dict[float, tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+        """Predict ``track`` to ``stamp``; ``steps``: F and Q by time step, filled as they are first needed."""
         dt = stamp - track.stamp
+        steps = {} if steps is None else steps
         if dt > 0:
-            cfg = self.config
-            track.kf.predict(F=transition_matrix(dt), Q=process_noise_matrix(
-                dt, cfg.process_noise, cfg.process_noise_model, cfg.process_noise_y))
+            if dt not in steps:
+                cfg = self.config
+                steps[dt] = (transition_matrix(dt), process_noise_matrix(dt, cfg.process_noise,
+                                                                         cfg.process_noise_model, cfg.process_noise_y))
+            transition, noise = steps[dt]
+            track.kf.predict(F=transition, Q=noise)
         track.stamp = stamp
 
     def _correct(self, track: TrackRecord, stamp: float, center: np.ndarray, size: np.ndarray,
