@@ -14,6 +14,7 @@ arrays are numpy arrays of their element type, as rclpy gives them.
 
 from __future__ import annotations
 
+import functools
 import struct
 
 import numpy as np
@@ -53,29 +54,41 @@ class WireType:
 
     def new(self, **fields) -> object:
         """A message with ``fields`` set and every other field zero, empty or all-zero (as a default rclpy one)."""
-        return _new(self._store, self.msgtype, fields)
+        return _maker(self._store, self.msgtype)(fields)
 
 
-def _new(store, msgtype: str, fields: dict) -> object:
-    values = {name: fields[name] if name in fields else _default(store, desc)
-              for name, desc in store.fielddefs[msgtype][1]}
-    unknown = set(fields) - set(values)
-    if unknown:
-        raise DataError(f"{msgtype} has no field {', '.join(sorted(unknown))}")
-    return store.types[msgtype](**values)
+@functools.cache
+def _maker(store, msgtype: str):
+    """A function ``fields -> message`` of ``msgtype``: the field defaults worked out once, not at every message."""
+    defaults = [(name, _default_maker(store, desc)) for name, desc in store.fielddefs[msgtype][1]]
+    names = frozenset(name for name, _ in defaults)
+    cls = store.types[msgtype]
+
+    def make(fields: dict) -> object:
+        if not names.issuperset(fields):
+            raise DataError(f"{msgtype} has no field {', '.join(sorted(set(fields) - names))}")
+        return cls(**{name: fields[name] if name in fields else default() for name, default in defaults})
+
+    return make
 
 
-def _default(store, desc) -> object:
+def _default_maker(store, desc):
+    """A function giving a field's default: a new message or array each time, the same immutable value otherwise."""
     kind, detail = desc
     if kind == Nodetype.NAME:
-        return _new(store, detail, {})
+        nested = _maker(store, detail)
+        return lambda: nested({})
     if kind == Nodetype.BASE:
         name = detail[0]
-        return "" if name in ("string", "wstring") else False if name == "bool" else 0.0 if "float" in name else 0
+        value = "" if name in ("string", "wstring") else False if name == "bool" else 0.0 if "float" in name else 0
+        return lambda: value
     (element_kind, element), length = detail
+    count = length if kind == Nodetype.ARRAY else 0
     if element_kind == Nodetype.BASE and element[0] in _NUMPY_TYPES:
-        return np.zeros(length if kind == Nodetype.ARRAY else 0, dtype=_NUMPY_TYPES[element[0]])
-    return [_default(store, (element_kind, element)) for _ in range(length if kind == Nodetype.ARRAY else 0)]
+        dtype = _NUMPY_TYPES[element[0]]
+        return lambda: np.zeros(count, dtype=dtype)
+    element_default = _default_maker(store, (element_kind, element))
+    return lambda: [element_default() for _ in range(count)]
 
 
 def decoding_callback(wire: WireType, on_message, health) -> object:
