@@ -188,6 +188,7 @@ def test_the_scale_range_option_is_checked_and_defaults_to_the_augmentation_defa
 
 def test_the_webcam_options_are_checked_before_any_work(tmp_path):
     _train_is_refused(["--webcam-scale-range", "3,1"], "--webcam-scale-range 3,1")
+    _train_is_refused(["--webcam-repeats", "0"], "--webcam-repeats 0")
     _webcam_folder(tmp_path)
     from vessel_tools.detect.training.webcams import load_webcams
 
@@ -432,6 +433,23 @@ def test_webcam_images_become_vessel_boxes_and_held_out_webcams_are_left_out(tmp
     assert sample.image.shape == (3, 352, 640) and set(sample.classes.tolist()) <= {OTHER_CLASS}
     with pytest.raises(DataError, match="no such webcam"):
         load_webcams(tmp_path, {"camZ"})
+
+
+def test_webcam_repeats_crop_each_webcam_image_that_often_an_epoch(tmp_path):
+    from vessel_tools.detect.training.train_cli import _webcam_labels
+
+    _webcam_folder(tmp_path)
+    once, twice = ({}, {})
+    for images, repeats in ((once, 1), (twice, 2)):
+        args = argparse.Namespace(webcams=str(tmp_path), webcam_holdout="camB", webcam_repeats=repeats)
+        labels = _webcam_labels(args, images)
+        assert len(labels) == 2 * repeats and args.webcam_counts == {"camA": 2}
+        assert {(lab.video, lab.frame) for lab in labels} == set(images)
+    assert once.keys() == twice.keys() and len(once) == 2
+    from vessel_tools.detect.training.model_card import _webcams
+
+    card = "".join(_webcams({"folder": str(tmp_path), "images": {"camA": 2}, "held_out": "camB", "repeats": 2}))
+    assert "camA 2 (images each), each image cropped 2 time(s) an epoch" in card
 
 
 def test_smoke_training_with_webcam_images(tiny_onnx, tmp_path):

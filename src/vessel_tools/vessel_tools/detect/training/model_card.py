@@ -72,7 +72,8 @@ def _webcams(webcams: dict | None) -> list[str]:
     images = ", ".join(f"{k} {v}" for k, v in sorted((webcams.get("images") or {}).items()))
     return [
         f"- other cameras (hand boxes, `vessel` only): `{webcams.get('folder')}`, train and test splits of the "
-        f"webcams {images} (images each); held out: {webcams.get('held_out') or 'none'}. Shore Livecams: D. Ahlers, "
+        f"webcams {images} (images each), each image cropped {webcams.get('repeats', 1)} time(s) an epoch "
+        f"(`--webcam-repeats`); held out: {webcams.get('held_out') or 'none'}. Shore Livecams: D. Ahlers, "
         "P. Bhattacharya, P. Nowak, U. Zölzer, \"Shore Livecams: A Maritime Dataset for Deep Learning based Object "
         "Detection\", SITIS 2023.",
     ]

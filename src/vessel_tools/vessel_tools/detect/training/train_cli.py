@@ -61,6 +61,9 @@ def _add_data_arguments(train: argparse.ArgumentParser) -> None:
                             "e.g. ../shared/shorecams (default: none)")
     train.add_argument("--webcam-holdout", default="",
                        help="comma-separated webcam ids (file-name prefixes) left out of --webcams, to score on")
+    train.add_argument("--webcam-repeats", type=int, default=1,
+                       help="crops of each webcam image per epoch (default 1): their many boats per image are "
+                            "learnt from more views")
 
 
 def _add_recipe_arguments(train: argparse.ArgumentParser) -> None:
@@ -211,6 +214,8 @@ def _train_settings(args: argparse.Namespace) -> TrainSettings:
                                                                                "--webcam-scale-range")))
     if settings.epochs < 1 or settings.batch_size < 1 or not settings.learning_rate > 0:
         raise DataError("--epochs and --batch-size must be at least 1 and --lr positive")
+    if args.webcam_repeats < 1:
+        raise DataError(f"--webcam-repeats {args.webcam_repeats}: each webcam image is cropped at least once an epoch")
     return settings
 
 
@@ -259,9 +264,9 @@ def _webcam_labels(args: argparse.Namespace, images: dict) -> list[FrameLabels]:
     images.update(webcam_images)
     args.webcam_counts = counts
     print(f"webcams: {len(labels)} images, {sum(len(lab.boxes) for lab in labels)} vessel boxes "
-          f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()))}); held out: {', '.join(sorted(held_out))}",
-          file=sys.stderr)
-    return labels
+          f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()))}), each cropped {args.webcam_repeats} "
+          f"time(s) an epoch; held out: {', '.join(sorted(held_out))}", file=sys.stderr)
+    return labels * args.webcam_repeats
 
 
 def _init_model(args: argparse.Namespace) -> Path:
@@ -324,7 +329,7 @@ def _summary(args: argparse.Namespace, result, settings: TrainSettings, data: _T
         "calibration": _relative(args.calib), "init_model": str(data.init_model), "settings": _jsonable(settings),
         "label_settings": _jsonable(data.label_settings), "label_counts": data.counts,
         "size_model": {"width": size_model.width, "height": size_model.height, "n_points": size_model.n_points},
-        "webcams": {"folder": args.webcams, "held_out": args.webcam_holdout,
+        "webcams": {"folder": args.webcams, "held_out": args.webcam_holdout, "repeats": args.webcam_repeats,
                     "images": getattr(args, "webcam_counts", {})} if args.webcams else None,
         "history": result.history, "seconds": result.seconds, "onnx_max_abs_diff": result.onnx_max_abs_diff,
         "validation": None if result.validation is None else {
